@@ -81,6 +81,14 @@ const nlohmann::json* schema_for(const std::string& name) {
   return it == parsed.end() ? nullptr : it->second.get();
 }
 
+const nlohmann::json* kind_schema(const StageKind& kind) {
+  if (kind.schema.empty()) return schema_for(kind.kind);
+  static std::map<std::string, std::unique_ptr<nlohmann::json>> inline_schemas;  // parsed once
+  auto& slot = inline_schemas[kind.kind];
+  if (!slot) slot = std::make_unique<nlohmann::json>(nlohmann::json::parse(kind.schema));
+  return slot.get();
+}
+
 const Artifact& StageContext::input(const std::string& type) const {
   for (auto& a : inputs())
     if (a.type == type) return a;

@@ -18,5 +18,7 @@ std::vector<const ArtifactType*> all_artifact_types();
 const std::map<std::string, std::string>& embedded_schemas();
 // The parsed schema, or nullptr when there is none.
 const nlohmann::json* schema_for(const std::string& name);
+// The parameter schema of a kind: its inline schema, else schemas/<kind>.schema.json.
+const nlohmann::json* kind_schema(const StageKind& kind);
 
 }  // namespace meshflow

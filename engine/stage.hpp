@@ -92,6 +92,9 @@ struct StageKind {
   std::string summary;                 // one line for `meshflow kinds` and README
   std::vector<std::string> libraries;  // "name version" of libraries whose version is in the key
   std::function<void(StageContext&)> run;
+  // Inline JSON schema of the parameters. Empty (the rule for every product kind): the
+  // schema is schemas/<kind>.schema.json. Tests define throwaway kinds with inline schemas.
+  std::string schema;
 };
 
 // Registers a stage kind; called from static initialisers (StageRegistrar).

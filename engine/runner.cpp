@@ -1,0 +1,708 @@
+#include "engine/runner.hpp"
+
+#include "engine/artifact_type.hpp"
+#include "engine/fsutil.hpp"
+#include "engine/hash.hpp"
+#include "engine/registry.hpp"
+
+#include <algorithm>
+#include <cerrno>
+#include <chrono>
+#include <cmath>
+#include <csignal>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <fcntl.h>
+#include <iomanip>
+#include <iostream>
+#include <functional>
+#include <map>
+#include <set>
+#include <poll.h>
+#include <sstream>
+#include <sys/prctl.h>
+#include <sys/resource.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <thread>
+#include <unistd.h>
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+using Clock = std::chrono::steady_clock;
+
+namespace meshflow {
+
+fs::path resolve_cache_dir(const Workflow& wf, const fs::path& option) {
+  if (!option.empty()) return fs::absolute(option);
+  if (const char* env = std::getenv("MESHFLOW_CACHE"); env && *env) return fs::absolute(env);
+  return wf.dir / ".meshflow";
+}
+
+namespace {
+
+// ---------------------------------------------------------------------------------------
+// Keys
+
+struct KeyResult {
+  json preimage;
+  std::string key;
+};
+
+// The preimage of a stage's cache key (DESIGN.md §4). Throws WorkflowError for unreadable files.
+KeyResult make_key(const Workflow& wf, const StageDecl& d, const std::vector<Artifact>& inputs) {
+  const StageKind* kind = find_stage_kind(d.kind);
+  json pre;
+  pre["engine"] = kEngineFormat;
+  pre["kind"] = d.kind;
+  pre["kind_version"] = kind->version;
+  pre["params"] = d.params;
+  pre["libraries"] = kind->libraries;
+  json ins = json::array();
+  for (auto& a : inputs) ins.push_back({{"stage", a.stage}, {"name", a.name}, {"type", a.type}, {"digest", a.digest}});
+  pre["inputs"] = ins;
+  json files = json::object();
+  for (auto& f : d.files) {
+    std::error_code ec;
+    if (!fs::is_regular_file(f.path, ec))
+      throw WorkflowError(wf.file.string() + ":" + std::to_string(d.line) + ": stage '" + d.name + "', parameter '" +
+                          f.pointer.substr(1) + "': cannot read '" + f.path.string() +
+                          "' (no such file). Relative paths are relative to the workflow file's folder.");
+    try {
+      files[f.pointer] = sha256_file(f.path);
+    } catch (const std::exception& e) {
+      throw WorkflowError(wf.file.string() + ":" + std::to_string(d.line) + ": stage '" + d.name + "', parameter '" +
+                          f.pointer.substr(1) + "': " + e.what() + ". Check the file's permissions.");
+    }
+  }
+  pre["files"] = files;
+  return {pre, sha256_hex(canonical_json(pre))};
+}
+
+std::vector<Artifact> artifacts_of_entry(const Cache& cache, const std::string& stage, const json& entry) {
+  std::vector<Artifact> v;
+  for (auto& o : entry["outputs"])
+    v.push_back({o["name"], o["type"], o["digest"], stage, cache.object_path(o["digest"])});
+  return v;
+}
+
+std::vector<Artifact> gather_inputs(const StageDecl& d, const std::map<std::string, StageResult>& results) {
+  std::vector<Artifact> in;
+  for (auto& n : d.needs) {
+    auto& r = results.at(n);
+    in.insert(in.end(), r.outputs.begin(), r.outputs.end());
+  }
+  return in;
+}
+
+// ---------------------------------------------------------------------------------------
+// The child side: one stage run in a forked process.
+
+class ChildContext final : public StageContext {
+ public:
+  ChildContext(const StageDecl& d, std::vector<Artifact> inputs, fs::path scratch, int pipe_fd, int threads)
+      : decl_(d), inputs_(std::move(inputs)), scratch_(std::move(scratch)), fd_(pipe_fd), threads_(threads) {}
+  const json& params() const override { return decl_.params; }
+  const std::string& stage_name() const override { return decl_.name; }
+  const std::vector<Artifact>& inputs() const override { return inputs_; }
+  fs::path output(const std::string& name, const std::string& type) override {
+    if (!find_artifact_type(type))
+      throw std::logic_error("stage kind '" + decl_.kind + "' declares an output of unregistered artifact type '" + type + "'");
+    for (auto& o : outputs_)
+      if (o.first == name) throw std::logic_error("stage kind '" + decl_.kind + "' declares output '" + name + "' twice");
+    outputs_.push_back({name, type});
+    return scratch_ / ("out." + name);
+  }
+  fs::path file(const std::string& value) const override {
+    for (auto& f : decl_.files)
+      if (decl_.params.at(json::json_pointer(f.pointer)) == value) return f.path;
+    throw std::logic_error("stage '" + decl_.name + "' asked for file '" + value +
+                           "', which is not a parameter marked x-meshflow-file in its schema");
+  }
+  void progress(double fraction, const std::string& what) override {
+    send("P " + std::to_string(std::clamp(fraction, 0.0, 1.0)) + " " + what);
+  }
+  void log(const std::string& line) override {
+    log_.push_back(line);
+    send("L " + line);
+  }
+  json& stats() override { return stats_; }
+  int threads() const override { return threads_; }
+
+  const std::vector<std::pair<std::string, std::string>>& declared() const { return outputs_; }
+  const std::vector<std::string>& log_lines() const { return log_; }
+
+ private:
+  void send(std::string msg) {
+    for (auto& c : msg)
+      if (c == '\n') c = ' ';
+    msg += '\n';
+    // Progress is advisory: a full pipe must never block or fail the stage.
+    (void)!::write(fd_, msg.data(), msg.size());
+  }
+  const StageDecl& decl_;
+  std::vector<Artifact> inputs_;
+  fs::path scratch_;
+  int fd_;
+  int threads_;
+  std::vector<std::pair<std::string, std::string>> outputs_;
+  std::vector<std::string> log_;
+  json stats_ = json::object();
+};
+
+[[noreturn]] void child_main(const StageDecl& d, std::vector<Artifact> inputs, Cache& cache, const fs::path& scratch,
+                             int fd, int threads, pid_t parent) {
+  // Die with the engine: a killed `meshflow` leaves no orphan stage writing into the cache.
+  ::prctl(PR_SET_PDEATHSIG, SIGKILL);
+  if (::getppid() != parent) std::_Exit(9);
+  // Library chatter goes to a file in the scratch dir, shown when the stage fails.
+  int logfd = ::open((scratch / "stage.out").c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (logfd >= 0) {
+    std::fflush(stdout);
+    std::fflush(stderr);
+    ::dup2(logfd, 1);
+    ::dup2(logfd, 2);
+    ::close(logfd);
+  }
+  json result;
+  ChildContext ctx(d, std::move(inputs), scratch, fd, threads);
+  try {
+    find_stage_kind(d.kind)->run(ctx);
+    json outs = json::array();
+    for (auto& [name, type] : ctx.declared()) {
+      fs::path p = scratch / ("out." + name);
+      if (!fs::is_regular_file(p))
+        throw std::logic_error("stage kind '" + d.kind + "' declared output '" + name + "' but did not write it");
+      auto size = fs::file_size(p);
+      std::string digest = cache.store_object(p);
+      outs.push_back({{"name", name}, {"type", type}, {"digest", digest}, {"size", size}});
+    }
+    result = {{"ok", true}, {"outputs", outs}, {"stats", ctx.stats()}, {"log", ctx.log_lines()}};
+  } catch (const StageError& e) {
+    result = {{"ok", false}, {"error", e.what()}, {"internal", false}};
+  } catch (const std::exception& e) {
+    result = {{"ok", false}, {"error", e.what()}, {"internal", true}};
+  } catch (...) {
+    result = {{"ok", false}, {"error", "unknown exception"}, {"internal", true}};
+  }
+  try {
+    atomic_write(scratch / "result.json", result.dump(), scratch);
+  } catch (...) {
+    std::_Exit(4);
+  }
+  std::fflush(stdout);
+  std::fflush(stderr);
+  std::_Exit(result["ok"].get<bool>() ? 0 : 3);
+}
+
+// ---------------------------------------------------------------------------------------
+// The parent side.
+
+struct Running {
+  size_t index;
+  pid_t pid;
+  int fd;
+  fs::path scratch;
+  std::unique_ptr<CacheLock> lock;
+  KeyResult key;
+  Clock::time_point start, last_touch;
+  double fraction = -1;
+  std::string what, buffer;
+  double last_printed = -1;
+};
+
+std::string tail_of(const fs::path& file, size_t max = 1500) {
+  try {
+    std::string s = read_file(file);
+    if (s.size() > max) s = "..." + s.substr(s.size() - max);
+    while (!s.empty() && (s.back() == '\n' || s.back() == ' ')) s.pop_back();
+    return s;
+  } catch (...) {
+    return {};
+  }
+}
+
+std::string fmt(double v, int prec) {
+  std::ostringstream s;
+  s << std::fixed << std::setprecision(prec) << v;
+  return s.str();
+}
+
+void materialise(const Workflow& wf, const RunResult& rr, const fs::path& out_dir, json& report_outputs) {
+  for (auto& od : wf.outputs) {
+    auto it = std::find_if(rr.stages.begin(), rr.stages.end(), [&](auto& s) { return s.name == od.from; });
+    if (it == rr.stages.end() || it->outputs.empty()) continue;
+    const Artifact* art = &it->outputs.front();
+    if (!od.artifact.empty()) {
+      art = nullptr;
+      for (auto& a : it->outputs)
+        if (a.name == od.artifact) art = &a;
+      if (!art)
+        throw WorkflowError(wf.file.string() + ": output '" + od.name + "': stage '" + od.from + "' has no artifact '" +
+                            od.artifact + "'.");
+    }
+    const ArtifactType* type = find_artifact_type(art->type);
+    json files = json::array();
+    auto write_one = [&](const std::string& ext, const std::function<void(const fs::path&)>& produce) {
+      fs::path target = out_dir / (od.name + ext);
+      fs::path tmp = out_dir / ("." + od.name + ext + ".tmp." + unique_suffix());
+      try {
+        produce(tmp);
+        fs::rename(tmp, target);
+      } catch (...) {
+        std::error_code ec;
+        fs::remove(tmp, ec);
+        throw;
+      }
+      files.push_back(target.filename().string());
+    };
+    if (od.formats.empty()) {
+      write_one(type ? type->extension : "", [&](const fs::path& tmp) {
+        std::error_code ec;
+        fs::create_hard_link(art->path, tmp, ec);
+        if (ec) fs::copy_file(art->path, tmp);
+      });
+    }
+    for (auto& f : od.formats) {
+      if (!type || !type->formats.count(f)) {
+        std::string known;
+        if (type)
+          for (auto& [n, x] : type->formats) known += (known.empty() ? "" : ", ") + n;
+        throw WorkflowError(wf.file.string() + ": output '" + od.name + "': artifact type '" + art->type +
+                            "' has no format '" + f + "'" + (known.empty() ? "" : " (formats: " + known + ")") + ".");
+      }
+      auto& fmtd = type->formats.at(f);
+      write_one(fmtd.extension, [&](const fs::path& tmp) { fmtd.write(art->path, tmp); });
+    }
+    report_outputs[od.name] = {{"from", od.from}, {"artifact", art->name}, {"type", art->type}, {"digest", art->digest}, {"files", files}};
+  }
+}
+
+}  // namespace
+
+RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
+  std::ostream& out = opt.out ? *opt.out : std::cout;
+  std::ostream& err = opt.err ? *opt.err : std::cerr;
+  const int cores = int(std::max(1u, std::thread::hardware_concurrency()));
+  const int jobs = opt.jobs > 0 ? opt.jobs : cores;
+  const int threads = opt.threads > 0 ? opt.threads : cores;
+  const int stage_threads = std::max(1, threads / jobs);
+  const bool tty = (&out == &std::cout) && ::isatty(1);
+
+  Cache cache(resolve_cache_dir(wf, opt.cache_dir));
+  cache.clean_stale_tmp();
+
+  RunResult rr;
+  std::map<std::string, StageResult> results;
+  for (auto& d : wf.stages) {
+    results[d.name].name = d.name;
+    results[d.name].kind = d.kind;
+  }
+  enum State { Pending, Waiting, Active, Done };
+  std::vector<State> state(wf.stages.size(), Pending);
+  std::vector<Running> running;
+  std::map<size_t, std::string> waiting_on;
+  const auto t0 = Clock::now();
+  size_t finished = 0;
+  bool any_failed = false;
+
+  auto secs = [](Clock::time_point a) { return std::chrono::duration<double>(Clock::now() - a).count(); };
+  auto status_line = [&]() {
+    if (!tty) return;
+    std::string s = "[" + std::to_string(finished) + "/" + std::to_string(wf.stages.size()) + "]";
+    for (auto& r : running) {
+      s += "  " + wf.stages[r.index].name + " " + fmt(secs(r.start), 1) + "s";
+      if (r.fraction >= 0) s += " " + std::to_string(int(std::lround(r.fraction * 100))) + "%";
+      if (!r.what.empty() && running.size() == 1) s += " " + r.what;
+    }
+    for (auto& [i, who] : waiting_on) s += "  " + wf.stages[i].name + " (waiting for " + who + ")";
+    if (s.size() > 150) s = s.substr(0, 147) + "...";
+    out << "\r\033[K" << s << std::flush;
+  };
+  auto line = [&](const std::string& s) {
+    if (tty) out << "\r\033[K";
+    out << s << "\n" << std::flush;
+  };
+  auto finish = [&](size_t i, const std::string& status) {
+    state[i] = Done;
+    ++finished;
+    auto& r = results[wf.stages[i].name];
+    r.status = status;
+    if (status == "failed") any_failed = true;
+    if (status == "ran") line("  ran     " + r.name + " (" + fmt(r.seconds, 2) + " s, " + fmt(r.peak_rss_mb, 0) + " MB)");
+    else if (status == "cached") line("  cached  " + r.name);
+    else if (status == "failed") line("  FAILED  " + r.name);
+  };
+
+  line("meshflow: " + wf.name + " (" + wf.file.string() + "), " + std::to_string(wf.stages.size()) + " stages, cache " +
+       cache.root().string());
+
+  while (finished < wf.stages.size()) {
+    // Start what is ready, in topological order, within the job budget.
+    for (size_t i = 0; i < wf.stages.size(); ++i) {
+      if (state[i] != Pending && state[i] != Waiting) continue;
+      const StageDecl& d = wf.stages[i];
+      bool ready = true, blocked = false;
+      for (auto& n : d.needs) {
+        auto& nr = results[n];
+        size_t ni = size_t(std::find_if(wf.stages.begin(), wf.stages.end(), [&](auto& s) { return s.name == n; }) - wf.stages.begin());
+        if (state[ni] != Done) ready = false;
+        else if (nr.status == "failed" || nr.status == "skipped") blocked = true;
+      }
+      if (blocked) {
+        results[d.name].error = "not run: a stage it needs failed";
+        finish(i, "skipped");
+        continue;
+      }
+      if (!ready) continue;
+      auto& r = results[d.name];
+      KeyResult key;
+      try {
+        key = make_key(wf, d, gather_inputs(d, results));
+      } catch (const WorkflowError& e) {
+        r.error = e.what();
+        err << "error: " << e.what() << "\n";
+        finish(i, "failed");
+        continue;
+      }
+      r.key = key.key;
+      auto hit = [&](const json& entry) {
+        r.outputs = artifacts_of_entry(cache, d.name, entry);
+        r.stats = entry.value("stats", json::object());
+        r.seconds = 0;
+        r.peak_rss_mb = 0;
+        waiting_on.erase(i);
+        cache.record_last(wf.name, d.name, {{"key", key.key}, {"preimage", key.preimage}});
+        finish(i, "cached");
+      };
+      if (auto entry = cache.load_action(key.key)) {
+        hit(*entry);
+        continue;
+      }
+      if (int(running.size()) >= jobs) continue;
+      std::string holder;
+      auto lock = cache.try_lock(key.key, &holder);
+      if (!lock) {
+        if (state[i] != Waiting) line("  waiting " + d.name + ": " + holder + " is computing it");
+        state[i] = Waiting;
+        waiting_on[i] = holder;
+        continue;
+      }
+      if (auto entry = cache.load_action(key.key)) {  // finished while we were not looking
+        hit(*entry);
+        continue;
+      }
+      waiting_on.erase(i);
+      fs::path scratch = cache.make_scratch();
+      int fds[2];
+      if (::pipe2(fds, O_CLOEXEC) != 0) throw std::runtime_error(std::string("pipe: ") + std::strerror(errno));
+      // Flush every buffer before fork, or the child would write the parent's pending output again.
+      std::cout.flush();
+      std::cerr.flush();
+      std::fflush(nullptr);
+      pid_t parent = ::getpid();
+      pid_t pid = ::fork();
+      if (pid < 0) throw std::runtime_error(std::string("fork: ") + std::strerror(errno));
+      if (pid == 0) {
+        ::close(fds[0]);
+        child_main(d, gather_inputs(d, results), cache, scratch, fds[1], stage_threads, parent);
+      }
+      ::close(fds[1]);
+      ::fcntl(fds[0], F_SETFL, O_NONBLOCK);
+      state[i] = Active;
+      if (!tty) line("  start   " + d.name + " (" + d.kind + ")");
+      Running rn;
+      rn.index = i;
+      rn.pid = pid;
+      rn.fd = fds[0];
+      rn.scratch = scratch;
+      rn.lock = std::move(lock);
+      rn.key = key;
+      rn.start = rn.last_touch = Clock::now();
+      running.push_back(std::move(rn));
+    }
+    if (finished == wf.stages.size()) break;
+
+    // Wait for progress messages (or 200 ms), then reap finished children.
+    std::vector<pollfd> pfds;
+    for (auto& r : running) pfds.push_back({r.fd, POLLIN, 0});
+    if (!pfds.empty()) ::poll(pfds.data(), pfds.size(), 200);
+    else std::this_thread::sleep_for(std::chrono::milliseconds(200));
+    for (auto& r : running) {
+      char buf[4096];
+      ssize_t n;
+      while ((n = ::read(r.fd, buf, sizeof buf)) > 0) r.buffer.append(buf, size_t(n));
+      size_t nl;
+      while ((nl = r.buffer.find('\n')) != std::string::npos) {
+        std::string msg = r.buffer.substr(0, nl);
+        r.buffer.erase(0, nl + 1);
+        if (msg.rfind("P ", 0) == 0) {
+          std::istringstream in(msg.substr(2));
+          in >> r.fraction;
+          std::getline(in >> std::ws, r.what);
+          if (!tty && (r.fraction - r.last_printed >= 0.25 || r.fraction >= 1.0) && r.fraction > r.last_printed) {
+            line("          " + wf.stages[r.index].name + " " + std::to_string(int(std::lround(r.fraction * 100))) + "% " + r.what);
+            r.last_printed = r.fraction;
+          }
+        } else if (msg.rfind("L ", 0) == 0 && opt.verbose) {
+          line("          " + wf.stages[r.index].name + ": " + msg.substr(2));
+        }
+      }
+      if (secs(r.last_touch) > 2) {
+        r.lock->keep_alive();
+        r.last_touch = Clock::now();
+      }
+    }
+    for (size_t k = 0; k < running.size();) {
+      auto& r = running[k];
+      int wstatus = 0;
+      struct rusage ru {};
+      pid_t w = ::wait4(r.pid, &wstatus, WNOHANG, &ru);
+      if (w == 0) {
+        ++k;
+        continue;
+      }
+      const StageDecl& d = wf.stages[r.index];
+      auto& res = results[d.name];
+      res.seconds = secs(r.start);
+      res.peak_rss_mb = double(ru.ru_maxrss) / 1024.0;
+      ::close(r.fd);
+      json result;
+      try {
+        result = json::parse(read_file(r.scratch / "result.json"));
+      } catch (...) {
+      }
+      std::string status = "failed";
+      if (WIFEXITED(wstatus) && WEXITSTATUS(wstatus) == 0 && result.value("ok", false)) {
+        json entry = {{"key", r.key.key},
+                      {"preimage", r.key.preimage},
+                      {"stage", d.name},
+                      {"workflow", wf.name},
+                      {"outputs", result["outputs"]},
+                      {"stats", result["stats"]},
+                      {"log", result["log"]},
+                      {"seconds", res.seconds},
+                      {"peak_rss_mb", res.peak_rss_mb}};
+        try {
+          cache.write_action(r.key.key, entry);  // last: its presence means the run is complete
+          cache.record_last(wf.name, d.name, {{"key", r.key.key}, {"preimage", r.key.preimage}});
+          res.outputs = artifacts_of_entry(cache, d.name, entry);
+          res.stats = result["stats"];
+          status = "ran";
+        } catch (const std::exception& e) {
+          res.error = std::string("could not record the result in the cache: ") + e.what();
+        }
+      } else if (!result.is_null() && result.contains("error")) {
+        res.error = result["error"].get<std::string>();
+        if (result.value("internal", false)) res.error = "internal error in kind '" + d.kind + "': " + res.error;
+      } else if (WIFSIGNALED(wstatus)) {
+        int sig = WTERMSIG(wstatus);
+        res.error = "the stage process was killed by signal " + std::to_string(sig) + " (" + strsignal(sig) + ")" +
+                    (sig == SIGKILL ? ", possibly out of memory" : "");
+        std::string t = tail_of(r.scratch / "stage.out");
+        if (!t.empty()) res.error += ". Its last output:\n" + t;
+      } else {
+        res.error = "the stage process exited with code " + std::to_string(WEXITSTATUS(wstatus)) + " without a result";
+        std::string t = tail_of(r.scratch / "stage.out");
+        if (!t.empty()) res.error += ". Its last output:\n" + t;
+      }
+      if (status == "failed")
+        err << "error: " << wf.file.string() << ": stage '" << d.name << "' (kind " << d.kind << ") failed: " << res.error
+            << "\n";
+      std::error_code ec;
+      fs::remove_all(r.scratch, ec);
+      r.lock.reset();
+      size_t idx = r.index;
+      running.erase(running.begin() + long(k));
+      finish(idx, status);
+    }
+    status_line();
+  }
+  if (tty) out << "\r\033[K";
+
+  rr.ok = !any_failed;
+  json stages = json::array();
+  for (auto& d : wf.stages) {
+    auto& r = results[d.name];
+    rr.stages.push_back(r);
+    json s = {{"name", r.name},       {"kind", r.kind},
+              {"status", r.status},   {"key", r.key},
+              {"seconds", r.seconds}, {"peak_rss_mb", r.peak_rss_mb},
+              {"stats", r.stats}};
+    if (!r.error.empty()) s["error"] = r.error;
+    stages.push_back(s);
+  }
+  rr.report = {{"workflow", wf.name}, {"file", wf.file.string()}, {"ok", rr.ok}, {"stages", stages},
+               {"seconds", secs(t0)}, {"outputs", json::object()}};
+
+  // Summary table.
+  out << "\n" << std::left << std::setw(16) << "stage" << std::setw(14) << "kind" << std::setw(8) << "status" << std::right
+      << std::setw(9) << "seconds" << std::setw(9) << "peak MB" << "  key\n";
+  for (auto& r : rr.stages)
+    out << std::left << std::setw(16) << r.name << std::setw(14) << r.kind << std::setw(8) << r.status << std::right
+        << std::setw(9) << (r.status == "ran" ? fmt(r.seconds, 2) : "-") << std::setw(9)
+        << (r.status == "ran" ? fmt(r.peak_rss_mb, 0) : "-") << "  " << r.key.substr(0, 12) << "\n";
+  for (auto& r : rr.stages)
+    if (r.stats.contains("mesh") && r.stats["mesh"].is_object()) {
+      auto& m = r.stats["mesh"];
+      out << "mesh after " << r.name << ": " << m.dump() << "\n";
+    }
+
+  if (opt.materialise) {
+    rr.out_dir = opt.out_dir.empty() ? fs::current_path() / "out" / wf.name : fs::absolute(opt.out_dir);
+    try {
+      fs::create_directories(rr.out_dir);
+      if (rr.ok) materialise(wf, rr, rr.out_dir, rr.report["outputs"]);
+    } catch (const std::exception& e) {
+      rr.ok = false;
+      rr.report["ok"] = false;
+      rr.report["error"] = e.what();
+      err << "error: " << e.what() << "\n";
+    }
+    try {
+      atomic_write(rr.out_dir / "report.json", rr.report.dump(2) + "\n");
+      out << "outputs: " << rr.out_dir.string() << " (report.json";
+      for (auto& [n, o] : rr.report["outputs"].items())
+        for (auto& f : o["files"]) out << ", " << f.get<std::string>();
+      out << ")\n";
+    } catch (const std::exception& e) {
+      rr.ok = false;
+      err << "error: cannot write " << (rr.out_dir / "report.json").string() << ": " << e.what() << "\n";
+    }
+  }
+  out << (rr.ok ? "ok" : "FAILED") << " in " << fmt(secs(t0), 2) << " s\n" << std::flush;
+  return rr;
+}
+
+std::vector<std::string> json_diff(const json& a, const json& b, const std::string& path) {
+  std::vector<std::string> out;
+  if (a == b) return out;
+  if (a.is_object() && b.is_object()) {
+    std::set<std::string> keys;
+    for (auto& [k, v] : a.items()) keys.insert(k);
+    for (auto& [k, v] : b.items()) keys.insert(k);
+    for (auto& k : keys) {
+      std::string p = path.empty() ? k : path + "." + k;
+      if (!a.contains(k)) out.push_back(p + ": (absent) -> " + b[k].dump());
+      else if (!b.contains(k)) out.push_back(p + ": " + a[k].dump() + " -> (absent)");
+      else {
+        auto sub = json_diff(a[k], b[k], p);
+        out.insert(out.end(), sub.begin(), sub.end());
+      }
+    }
+    return out;
+  }
+  if (a.is_array() && b.is_array() && a.size() == b.size()) {
+    for (size_t i = 0; i < a.size(); ++i) {
+      auto sub = json_diff(a[i], b[i], path + "[" + std::to_string(i) + "]");
+      out.insert(out.end(), sub.begin(), sub.end());
+    }
+    return out;
+  }
+  auto show = [](const json& v) {
+    std::string s = v.dump();
+    return s.size() > 80 ? s.substr(0, 77) + "..." : s;
+  };
+  out.push_back(path + ": " + show(a) + " -> " + show(b));
+  return out;
+}
+
+std::vector<StageStatus> workflow_status(const Workflow& wf, Cache& cache) {
+  std::vector<StageStatus> out;
+  std::map<std::string, StageResult> results;
+  std::map<std::string, bool> fresh;
+  for (auto& d : wf.stages) {
+    StageStatus s{d.name, "", "", ""};
+    bool inputs_known = true;
+    std::string stale_need;
+    for (auto& n : d.needs)
+      if (!fresh[n]) {
+        inputs_known = false;
+        if (stale_need.empty()) stale_need = n;
+      }
+    fresh[d.name] = false;
+    if (!inputs_known) {
+      s.state = "stale";
+      s.reason = "needs '" + stale_need + "', which will run first";
+      out.push_back(s);
+      continue;
+    }
+    KeyResult key;
+    try {
+      key = make_key(wf, d, gather_inputs(d, results));
+    } catch (const WorkflowError& e) {
+      s.state = "error";
+      s.reason = e.what();
+      out.push_back(s);
+      continue;
+    }
+    s.key = key.key;
+    if (auto entry = cache.load_action(key.key)) {
+      s.state = "fresh";
+      fresh[d.name] = true;
+      results[d.name].outputs = artifacts_of_entry(cache, d.name, *entry);
+    } else if (auto last = cache.last(wf.name, d.name)) {
+      s.state = "stale";
+      auto diff = json_diff((*last)["preimage"], key.preimage);
+      s.reason = diff.empty() ? "its last result is no longer in the cache" : diff.front() +
+                                                                                  (diff.size() > 1 ? " (+" + std::to_string(diff.size() - 1) + " more)" : "");
+    } else {
+      s.state = "never run";
+    }
+    out.push_back(s);
+  }
+  return out;
+}
+
+std::vector<std::string> explain_stage(const Workflow& wf, Cache& cache, const std::string& stage) {
+  const StageDecl* d = wf.find(stage);
+  if (!d) {
+    std::string known;
+    for (auto& s : wf.stages) known += (known.empty() ? "" : ", ") + s.name;
+    throw WorkflowError(wf.file.string() + ": no stage '" + stage + "' (stages: " + known + ").");
+  }
+  std::vector<std::string> lines;
+  auto status = workflow_status(wf, cache);
+  auto it = std::find_if(status.begin(), status.end(), [&](auto& s) { return s.name == stage; });
+  std::map<std::string, StageResult> results;
+  for (auto& s : status)
+    if (s.state == "fresh")
+      if (auto e = cache.load_action(s.key)) results[s.name].outputs = artifacts_of_entry(cache, s.name, *e);
+  if (it->state == "fresh") {
+    lines.push_back(stage + " is fresh: key " + it->key + " is in the cache.");
+    return lines;
+  }
+  auto last = cache.last(wf.name, stage);
+  if (!last) {
+    lines.push_back(stage + " has never run with this cache (" + cache.root().string() + ").");
+    return lines;
+  }
+  bool inputs_known = true;
+  for (auto& n : d->needs)
+    if (!results.count(n)) inputs_known = false;
+  if (!inputs_known) {
+    lines.push_back(stage + " is stale because a stage it needs is stale:");
+    for (auto& n : d->needs)
+      if (!results.count(n)) {
+        auto nit = std::find_if(status.begin(), status.end(), [&](auto& s) { return s.name == n; });
+        lines.push_back("  " + n + ": " + nit->state + (nit->reason.empty() ? "" : " (" + nit->reason + ")"));
+      }
+    lines.push_back("Its inputs will be known after those run; its own parameters against the last run:");
+    json cur = make_key(wf, *d, {}).preimage;
+    json old = (*last)["preimage"];
+    cur.erase("inputs");
+    old.erase("inputs");
+    for (auto& l : json_diff(old, cur)) lines.push_back("  " + l);
+    return lines;
+  }
+  KeyResult key = make_key(wf, *d, gather_inputs(*d, results));
+  lines.push_back(stage + " is stale: its key " + key.key.substr(0, 12) + " differs from the last run's " +
+                  (*last)["key"].get<std::string>().substr(0, 12) + " in:");
+  auto diff = json_diff((*last)["preimage"], key.preimage);
+  if (diff.empty()) lines.push_back("  nothing: the last run's result was removed from the cache (gc?)");
+  for (auto& l : diff) lines.push_back("  " + l);
+  return lines;
+}
+
+}  // namespace meshflow

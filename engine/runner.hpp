@@ -1,0 +1,65 @@
+// meshflow engine — runs a workflow: stale stages only, independent ones in parallel, each in
+// a child process; progress while running, a summary table and report.json at the end.
+#pragma once
+
+#include "engine/cache.hpp"
+#include "engine/stage.hpp"
+#include "engine/workflow.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <filesystem>
+#include <iosfwd>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace meshflow {
+
+constexpr int kEngineFormat = 1;  // bump when the key preimage or the store layout changes
+
+struct RunOptions {
+  std::filesystem::path cache_dir;  // empty: --cache > $MESHFLOW_CACHE > .meshflow/ beside the workflow
+  std::filesystem::path out_dir;    // empty: out/<workflow name>/ under the current directory
+  int jobs = 0;                     // stages at once; 0 = number of cores
+  int threads = 0;                  // total thread budget; 0 = number of cores
+  bool materialise = true;          // write outputs and report.json
+  bool verbose = false;             // stage log lines as they come
+  std::ostream* out = nullptr;      // progress and summary (default std::cout)
+  std::ostream* err = nullptr;      // error paragraphs (default std::cerr)
+};
+
+struct StageResult {
+  std::string name, kind;
+  std::string status = "skipped";  // ran | cached | failed | skipped
+  std::string key, error;
+  double seconds = 0, peak_rss_mb = 0;
+  nlohmann::json stats = nlohmann::json::object();
+  std::vector<Artifact> outputs;
+};
+
+struct RunResult {
+  bool ok = false;
+  std::vector<StageResult> stages;  // in topological order
+  nlohmann::json report;
+  std::filesystem::path out_dir;
+};
+
+std::filesystem::path resolve_cache_dir(const Workflow& wf, const std::filesystem::path& option);
+
+RunResult run_workflow(const Workflow& wf, const RunOptions& options);
+
+// Status without running: fresh (cached), stale (with the reason), never run, or waiting on
+// a stale upstream stage.
+struct StageStatus {
+  std::string name, state, reason, key;
+};
+std::vector<StageStatus> workflow_status(const Workflow& wf, Cache& cache);
+
+// Field-by-field difference of two JSON values: "params.layers: 10 -> 12".
+std::vector<std::string> json_diff(const nlohmann::json& before, const nlohmann::json& after, const std::string& path = "");
+
+// `meshflow explain`: why STAGE is stale, as lines.
+std::vector<std::string> explain_stage(const Workflow& wf, Cache& cache, const std::string& stage);
+
+}  // namespace meshflow

@@ -1,0 +1,345 @@
+#include "engine/workflow.hpp"
+
+#include "engine/registry.hpp"
+#include "engine/schema.hpp"
+
+#include <yaml-cpp/yaml.h>
+
+#include <algorithm>
+#include <fstream>
+#include <functional>
+#include <map>
+#include <regex>
+#include <set>
+#include <sstream>
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+namespace meshflow {
+
+namespace {
+
+struct Mark {
+  int line = 0, column = 0;  // 1-based; line -1 = from --set
+};
+
+struct Source {
+  std::string file;
+  std::map<std::string, Mark> marks;       // JSON pointer -> where it was written
+  std::map<std::string, std::string> raw;  // pointer -> text of plain scalars
+
+  [[noreturn]] void fail(const std::string& pointer, const std::string& what) const {
+    // The nearest enclosing pointer that has a mark.
+    std::string p = pointer;
+    Mark m;
+    while (true) {
+      auto it = marks.find(p);
+      if (it != marks.end()) {
+        m = it->second;
+        break;
+      }
+      if (p.empty()) break;
+      p = p.substr(0, p.rfind('/'));
+    }
+    std::string where = file;
+    if (m.line > 0) where += ":" + std::to_string(m.line) + ":" + std::to_string(m.column);
+    if (m.line < 0) where += " (--set)";
+    throw WorkflowError(where + ": " + what);
+  }
+};
+
+std::string escape_token(const std::string& k) {
+  std::string s;
+  for (char c : k) s += c == '~' ? std::string("~0") : c == '/' ? std::string("~1") : std::string(1, c);
+  return s;
+}
+
+std::string dotted(const std::string& pointer) {
+  std::string s;
+  std::stringstream in(pointer);
+  std::string tok;
+  std::getline(in, tok, '/');
+  while (std::getline(in, tok, '/')) s += (s.empty() ? "" : ".") + tok;
+  return s;
+}
+
+json scalar_to_json(const YAML::Node& n, bool* plain) {
+  const std::string& t = n.Scalar();
+  *plain = n.Tag() != "!";
+  if (!*plain) return t;
+  static const std::regex int_re("[-+]?[0-9]+");
+  static const std::regex float_re("[-+]?(\\.[0-9]+|[0-9]+(\\.[0-9]*)?)([eE][-+]?[0-9]+)?");
+  if (t == "~" || t == "null" || t == "Null" || t == "NULL" || t.empty()) return nullptr;
+  if (t == "true" || t == "True" || t == "TRUE") return true;
+  if (t == "false" || t == "False" || t == "FALSE") return false;
+  if (std::regex_match(t, int_re)) {
+    try {
+      return std::stoll(t);
+    } catch (...) {
+    }
+  }
+  if (std::regex_match(t, float_re)) return std::stod(t);
+  if (t == ".inf" || t == "+.inf") return std::numeric_limits<double>::infinity();
+  if (t == "-.inf") return -std::numeric_limits<double>::infinity();
+  return t;
+}
+
+json yaml_to_json(const YAML::Node& n, const std::string& ptr, Source& src) {
+  src.marks[ptr] = {n.Mark().line + 1, n.Mark().column + 1};
+  switch (n.Type()) {
+    case YAML::NodeType::Null: return nullptr;
+    case YAML::NodeType::Scalar: {
+      bool plain = false;
+      json v = scalar_to_json(n, &plain);
+      if (plain) src.raw[ptr] = n.Scalar();
+      return v;
+    }
+    case YAML::NodeType::Sequence: {
+      json a = json::array();
+      size_t i = 0;
+      for (auto it = n.begin(); it != n.end(); ++it, ++i) a.push_back(yaml_to_json(*it, ptr + "/" + std::to_string(i), src));
+      return a;
+    }
+    case YAML::NodeType::Map: {
+      json o = json::object();
+      for (auto it = n.begin(); it != n.end(); ++it) {
+        if (!it->first.IsScalar()) src.fail(ptr, "a key must be a plain name");
+        std::string k = it->first.Scalar();
+        std::string p = ptr + "/" + escape_token(k);
+        if (o.contains(k)) {
+          src.marks[p] = {it->first.Mark().line + 1, it->first.Mark().column + 1};
+          src.fail(p, "duplicate key '" + k + "'" + (dotted(ptr) == "stages" ? " (a stage of that name is already declared)" : "") +
+                          ": each key may appear once; rename or remove one of them.");
+        }
+        o[k] = yaml_to_json(it->second, p, src);
+        src.marks[p] = {it->first.Mark().line + 1, it->first.Mark().column + 1};
+      }
+      return o;
+    }
+    default: return nullptr;
+  }
+}
+
+std::string issue_text(const SchemaIssue& is, const std::string& prefix) {
+  std::string name = dotted(is.pointer);
+  std::string s = prefix + (name.empty() ? std::string("the value") : "'" + name + "'") + " " + is.message + ".";
+  if (!is.description.empty()) s += " (" + name + ": " + is.description + ")";
+  return s;
+}
+
+}  // namespace
+
+const StageDecl* Workflow::find(const std::string& stage) const {
+  for (auto& s : stages)
+    if (s.name == stage) return &s;
+  return nullptr;
+}
+
+std::vector<std::string> Workflow::descendants(const std::string& stage) const {
+  std::set<std::string> set{stage};
+  for (auto& s : stages)  // topological order: one pass suffices
+    for (auto& n : s.needs)
+      if (set.count(n)) set.insert(s.name);
+  std::vector<std::string> out;
+  for (auto& s : stages)
+    if (set.count(s.name)) out.push_back(s.name);
+  return out;
+}
+
+Workflow load_workflow(const fs::path& file, const std::vector<std::string>& overrides) {
+  Source src;
+  src.file = file.string();
+  std::ifstream in(file);
+  if (!in)
+    throw WorkflowError(file.string() + ": cannot read the workflow file (" +
+                        (fs::exists(file) ? "permission denied" : "no such file") + "). Check the path.");
+  YAML::Node root;
+  try {
+    root = YAML::Load(in);
+  } catch (const YAML::Exception& e) {
+    throw WorkflowError(file.string() + ":" + std::to_string(e.mark.line + 1) + ":" + std::to_string(e.mark.column + 1) +
+                        ": YAML syntax error: " + e.msg + ". Fix the YAML (indentation, quotes, colons) at that place.");
+  }
+  if (!root.IsMap())
+    throw WorkflowError(file.string() + ": a workflow must be a YAML mapping with `meshflow: 1`, `name` and `stages`.");
+  json doc = yaml_to_json(root, "", src);
+
+  // --set STAGE.PARAM=VALUE
+  for (auto& o : overrides) {
+    auto eq = o.find('=');
+    auto dot = o.find('.');
+    if (eq == std::string::npos || dot == std::string::npos || dot > eq)
+      throw WorkflowError("--set " + o + ": expected STAGE.PARAM=VALUE, e.g. --set split.layers=12");
+    std::string stage = o.substr(0, dot), path = o.substr(dot + 1, eq - dot - 1), value = o.substr(eq + 1);
+    if (!doc.contains("stages") || !doc["stages"].is_object() || !doc["stages"].contains(stage))
+      throw WorkflowError("--set " + o + ": the workflow " + file.string() + " has no stage '" + stage + "'.");
+    json& st = doc["stages"][stage];
+    if (!st.is_object()) break;  // reported by validation below
+    std::string ptr = "/stages/" + escape_token(stage) + "/with";
+    json* target = &st["with"];
+    if (target->is_null()) *target = json::object();
+    std::stringstream ps(path);
+    std::string tok;
+    std::vector<std::string> toks;
+    while (std::getline(ps, tok, '.')) toks.push_back(tok);
+    for (size_t i = 0; i < toks.size(); ++i) {
+      if (!target->is_object())
+        throw WorkflowError("--set " + o + ": '" + stage + "." + path + "' does not name a parameter of an object.");
+      ptr += "/" + escape_token(toks[i]);
+      target = &(*target)[toks[i]];
+    }
+    YAML::Node v;
+    try {
+      v = YAML::Load(value);
+    } catch (const YAML::Exception& e) {
+      throw WorkflowError("--set " + o + ": the value is not valid YAML: " + e.msg);
+    }
+    Source tmp;
+    *target = v.IsNull() && !value.empty() ? json(value) : yaml_to_json(v, ptr, tmp);
+    for (auto& [p, r] : tmp.raw) src.raw[p] = r;
+    for (auto& [p, m] : tmp.marks) src.marks[p] = {-1, 0};
+  }
+
+  // Top level against schemas/workflow.schema.json.
+  const json* wschema = schema_for("workflow");
+  if (!wschema) throw std::logic_error("schemas/workflow.schema.json is not embedded");
+  auto issues = validate_schema(doc, *wschema, &src.raw);
+  if (!issues.empty()) {
+    auto& is = issues.front();
+    std::string what = issue_text(is, "");
+    if (is.pointer == "/meshflow") what += " This meshflow reads workflow format 1: put `meshflow: 1` at the top.";
+    if (is.pointer == "/name") what += " Give the workflow a `name:` (letters, digits, '-', '_', '.').";
+    src.fail(is.pointer, what);
+  }
+
+  Workflow wf;
+  wf.file = file;
+  wf.dir = fs::absolute(file).parent_path();
+  wf.name = doc["name"];
+
+  // Stages in file order (yaml-cpp keeps document order; nlohmann sorts, so walk the YAML).
+  std::vector<StageDecl> decls;
+  static const std::regex name_re("[A-Za-z_][A-Za-z0-9_-]*");
+  for (auto it = root["stages"].begin(); it != root["stages"].end(); ++it) {
+    std::string name = it->first.Scalar();
+    std::string base = "/stages/" + escape_token(name);
+    if (!std::regex_match(name, name_re))
+      src.fail(base, "stage name '" + name + "' must start with a letter or '_' and contain only letters, digits, '_' and '-'.");
+    json& st = doc["stages"][name];
+    StageDecl d;
+    d.name = name;
+    d.kind = st["kind"];
+    d.line = src.marks[base].line;
+    for (auto& n : st.value("needs", json::array())) d.needs.push_back(n);
+    const StageKind* kind = find_stage_kind(d.kind);
+    if (!kind) {
+      std::string known;
+      for (auto* k : all_stage_kinds()) known += (known.empty() ? "" : ", ") + k->kind;
+      src.fail(base + "/kind", "stage '" + name + "': unknown kind '" + d.kind + "'. Known kinds: " + known +
+                                   " (`meshflow kinds` describes them).");
+    }
+    const json* schema = kind_schema(*kind);
+    if (!schema) throw std::logic_error("stage kind '" + d.kind + "' has no schemas/" + d.kind + ".schema.json");
+    d.params = st.contains("with") && !st["with"].is_null() ? st["with"] : json::object();
+    auto pis = validate_schema(d.params, *schema, &src.raw, base + "/with");
+    if (!pis.empty()) {
+      auto& is = pis.front();
+      std::string param = dotted(is.pointer.substr(base.size() + 5));
+      std::string what = "stage '" + name + "' (kind " + d.kind + "), parameter '" + param + "' " + is.message + ".";
+      if (!is.description.empty()) what += " " + param + ": " + is.description;
+      what += " Fix it in the workflow or with --set " + name + "." + param + "=VALUE.";
+      src.fail(is.pointer, what);
+    }
+    for (auto& p : file_parameters(d.params, *schema)) {
+      fs::path given = d.params.at(json::json_pointer(p)).get<std::string>();
+      fs::path resolved = given.is_absolute() ? given : wf.dir / given;
+      d.files.push_back({p, resolved.lexically_normal()});
+    }
+    decls.push_back(std::move(d));
+  }
+
+  // Needs: known, not self, then a cycle check that names the cycle.
+  std::map<std::string, size_t> index;
+  for (size_t i = 0; i < decls.size(); ++i) index[decls[i].name] = i;
+  for (auto& d : decls)
+    for (size_t j = 0; j < d.needs.size(); ++j) {
+      std::string p = "/stages/" + escape_token(d.name) + "/needs/" + std::to_string(j);
+      if (!index.count(d.needs[j])) {
+        std::string known;
+        for (auto& e : decls) known += (known.empty() ? "" : ", ") + e.name;
+        src.fail(p, "stage '" + d.name + "' needs '" + d.needs[j] + "', which is not a stage of this workflow (stages: " + known +
+                        "). Fix the name or declare that stage.");
+      }
+      if (std::count(d.needs.begin(), d.needs.end(), d.needs[j]) > 1)
+        src.fail(p, "stage '" + d.name + "' lists '" + d.needs[j] + "' twice in `needs`: list each stage once.");
+    }
+  std::vector<int> color(decls.size(), 0);
+  std::vector<size_t> stack;
+  std::function<void(size_t)> dfs = [&](size_t i) {
+    color[i] = 1;
+    stack.push_back(i);
+    for (auto& n : decls[i].needs) {
+      size_t j = index[n];
+      if (color[j] == 1) {
+        std::string cyc;
+        auto from = std::find(stack.begin(), stack.end(), j);
+        for (auto k = from; k != stack.end(); ++k) cyc += decls[*k].name + " -> ";
+        cyc += decls[j].name;
+        src.fail("/stages/" + escape_token(decls[i].name) + "/needs",
+                 "the stages form a cycle: " + cyc + " (each needs the next). A workflow must be acyclic: remove one of these needs.");
+      }
+      if (color[j] == 0) dfs(j);
+    }
+    stack.pop_back();
+    color[i] = 2;
+  };
+  for (size_t i = 0; i < decls.size(); ++i)
+    if (color[i] == 0) dfs(i);
+
+  // Kahn's algorithm, ties broken by file order: a deterministic topological order.
+  std::vector<int> indeg(decls.size(), 0);
+  for (auto& d : decls) indeg[index[d.name]] = int(d.needs.size());
+  std::vector<bool> done(decls.size(), false);
+  while (wf.stages.size() < decls.size()) {
+    for (size_t i = 0; i < decls.size(); ++i) {
+      if (done[i] || indeg[i] != 0) continue;
+      done[i] = true;
+      for (auto& e : decls)
+        if (std::count(e.needs.begin(), e.needs.end(), decls[i].name)) --indeg[index[e.name]];
+      wf.stages.push_back(decls[i]);
+      break;
+    }
+  }
+
+  // Outputs.
+  if (doc.contains("outputs"))
+    for (auto& [oname, o] : doc["outputs"].items()) {
+      OutputDecl od{oname, o["from"], o.value("artifact", ""), {}};
+      for (auto& f : o.value("formats", json::array())) od.formats.push_back(f);
+      if (!wf.find(od.from))
+        src.fail("/outputs/" + escape_token(oname) + "/from",
+                 "output '" + oname + "' comes from stage '" + od.from + "', which is not a stage of this workflow.");
+      const StageKind* k = find_stage_kind(wf.find(od.from)->kind);
+      (void)k;
+      wf.outputs.push_back(std::move(od));
+    }
+
+  if (doc.contains("golden")) {
+    GoldenDecl g;
+    const json& gj = doc["golden"];
+    fs::path p = gj.is_string() ? gj.get<std::string>() : gj["path"].get<std::string>();
+    g.dir = (p.is_absolute() ? p : wf.dir / p).lexically_normal();
+    if (gj.is_object()) {
+      if (gj.contains("tolerance")) {
+        g.rel = gj["tolerance"].value("rel", g.rel);
+        g.abs = gj["tolerance"].value("abs", g.abs);
+      }
+      if (gj.contains("fields")) g.fields = gj["fields"];
+    }
+    wf.golden = g;
+  }
+  return wf;
+}
+
+}  // namespace meshflow

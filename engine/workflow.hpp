@@ -1,0 +1,71 @@
+// meshflow engine — the workflow file: YAML -> validated model with a deterministic DAG.
+//
+// A workflow (format version 1):
+//   meshflow: 1
+//   name: naca-wingtip
+//   stages:
+//     NAME: {kind: KIND, needs: [NAME...], with: {PARAM: VALUE...}}
+//   outputs:
+//     NAME: {from: STAGE, artifact: ARTIFACT (default: the stage's first), formats: [FMT...]}
+//   golden: DIR | {path: DIR, tolerance: {rel, abs}, fields: {"a.b.c": {rel, abs}}}
+// schemas/workflow.schema.json is the truth for the top level; schemas/<kind>.schema.json
+// for each stage's `with`. Relative paths are relative to the workflow file's folder.
+#pragma once
+
+#include <nlohmann/json.hpp>
+
+#include <filesystem>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace meshflow {
+
+// Every problem with a workflow is reported as one paragraph: where, what, what to do.
+struct WorkflowError : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+
+struct FileParam {
+  std::string pointer;          // "/file" within the stage's params
+  std::filesystem::path path;   // resolved against the workflow folder
+};
+
+struct StageDecl {
+  std::string name, kind;
+  std::vector<std::string> needs;
+  nlohmann::json params;        // validated, defaults filled
+  std::vector<FileParam> files; // parameters naming input files
+  int line = 0;                 // where the stage is declared (1-based; 0 unknown)
+};
+
+struct OutputDecl {
+  std::string name, from, artifact;
+  std::vector<std::string> formats;
+};
+
+struct GoldenDecl {
+  std::filesystem::path dir;
+  double rel = 1e-9, abs = 1e-12;  // default tolerance of numeric fields
+  nlohmann::json fields = nlohmann::json::object();  // "mesh.min_scaled_jacobian": {rel, abs}
+};
+
+struct Workflow {
+  std::filesystem::path file;  // as given
+  std::filesystem::path dir;   // its folder (absolute)
+  std::string name;
+  std::vector<StageDecl> stages;  // in deterministic topological order (file order for ties)
+  std::vector<OutputDecl> outputs;
+  std::optional<GoldenDecl> golden;
+
+  const StageDecl* find(const std::string& stage) const;
+  // The stage and everything downstream of it.
+  std::vector<std::string> descendants(const std::string& stage) const;
+};
+
+// Loads and validates the workflow; `overrides` are "STAGE.PARAM=VALUE" (--set), the value
+// parsed as YAML and typed by the schema. Throws WorkflowError.
+Workflow load_workflow(const std::filesystem::path& file, const std::vector<std::string>& overrides = {});
+
+}  // namespace meshflow

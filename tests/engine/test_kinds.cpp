@@ -1,0 +1,253 @@
+#include "test_kinds.hpp"
+
+#include "engine/artifact_type.hpp"
+#include "engine/cli.hpp"
+#include "engine/stage.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <chrono>
+#include <cmath>
+#include <cstdlib>
+#include <cstring>
+#include <fcntl.h>
+#include <fstream>
+#include <iostream>
+#include <random>
+#include <sstream>
+#include <sys/wait.h>
+#include <thread>
+#include <unistd.h>
+
+using nlohmann::json;
+
+namespace mftest {
+
+fs::path temp_dir(const std::string& tag) {
+  static std::mt19937_64 rng(std::random_device{}());
+  fs::path p = fs::temp_directory_path() / ("meshflow-test-" + tag + "-" + std::to_string(getpid()) + "-" + std::to_string(rng() % 1000000));
+  fs::remove_all(p);
+  fs::create_directories(p);
+  return p;
+}
+
+void write_text(const fs::path& p, const std::string& text) {
+  fs::create_directories(p.parent_path());
+  std::ofstream(p, std::ios::binary) << text;
+}
+
+std::string read_text(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::ostringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+CliResult cli(const std::vector<std::string>& args) {
+  std::vector<std::string> a = {"meshflow"};
+  a.insert(a.end(), args.begin(), args.end());
+  std::vector<char*> argv;
+  for (auto& s : a) argv.push_back(s.data());
+  argv.push_back(nullptr);
+  std::ostringstream out, err;
+  auto* old_out = std::cout.rdbuf(out.rdbuf());
+  auto* old_err = std::cerr.rdbuf(err.rdbuf());
+  int code = meshflow::cli_main(int(a.size()), argv.data());
+  std::cout.rdbuf(old_out);
+  std::cerr.rdbuf(old_err);
+  return {code, out.str(), err.str()};
+}
+
+int spawn(const std::vector<std::string>& args, const fs::path& log) {
+  std::string self = fs::read_symlink("/proc/self/exe");
+  pid_t pid = fork();
+  if (pid == 0) {
+    int fd = open(log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    dup2(fd, 1);
+    dup2(fd, 2);
+    std::vector<std::string> a = {self, "--as-meshflow"};
+    a.insert(a.end(), args.begin(), args.end());
+    std::vector<char*> argv;
+    for (auto& s : a) argv.push_back(s.data());
+    argv.push_back(nullptr);
+    execv(self.c_str(), argv.data());
+    _exit(127);
+  }
+  return pid;
+}
+
+int wait_exit(int pid) {
+  int st = 0;
+  waitpid(pid, &st, 0);
+  return WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
+}
+
+std::vector<std::string> calls(const fs::path& file) {
+  std::vector<std::string> v;
+  std::ifstream in(file);
+  std::string l;
+  while (std::getline(in, l))
+    if (!l.empty()) v.push_back(l);
+  return v;
+}
+
+int action_count(const fs::path& cache) {
+  int n = 0;
+  if (fs::exists(cache / "actions"))
+    for (auto& e : fs::directory_iterator(cache / "actions")) n += e.path().extension() == ".json";
+  return n;
+}
+
+int tmp_count(const fs::path& cache) {
+  int n = 0;
+  if (fs::exists(cache / "tmp"))
+    for ([[maybe_unused]] auto& e : fs::directory_iterator(cache / "tmp")) ++n;
+  return n;
+}
+
+}  // namespace mftest
+
+// ---------------------------------------------------------------------------------------
+// Test stage kinds. Each run appends its stage name to $MESHFLOW_TEST_CALLS (if set), so
+// tests can count stage function calls across the forked stage processes.
+namespace {
+
+void record_call(meshflow::StageContext& ctx) {
+  if (const char* f = std::getenv("MESHFLOW_TEST_CALLS")) {
+    std::ofstream(f, std::ios::app) << ctx.stage_name() << "\n";
+  }
+}
+
+meshflow::ArtifactTypeRegistrar blob_type({.type = "t_blob",
+                                           .extension = ".txt",
+                                           .summary = "test bytes",
+                                           .formats = {{"upper",
+                                                        {".upper.txt", "upper case",
+                                                         [](const std::filesystem::path& in, const std::filesystem::path& out) {
+                                                           std::string s = mftest::read_text(in);
+                                                           for (auto& c : s) c = char(std::toupper(static_cast<unsigned char>(c)));
+                                                           mftest::write_text(out, s);
+                                                         }}}},
+                                           .summarize = [](const std::filesystem::path& p) {
+                                             std::string s = mftest::read_text(p);
+                                             return json{{"bytes", s.size()}, {"head", s.substr(0, 16)}};
+                                           }});
+
+meshflow::StageRegistrar source({.kind = "t_source",
+                                 .version = 1,
+                                 .summary = "writes `text` `repeat` times",
+                                 .libraries = {},
+                                 .run =
+                                     [](meshflow::StageContext& ctx) {
+                                       record_call(ctx);
+                                       std::string t = ctx.params()["text"];
+                                       int n = ctx.params()["repeat"];
+                                       std::ofstream o(ctx.output("blob", "t_blob"), std::ios::binary);
+                                       for (int i = 0; i < n; ++i) o << t;
+                                     },
+                                 .schema = R"({"type":"object","additionalProperties":false,"properties":{
+                                   "text":{"type":"string","default":"hello","description":"what to write"},
+                                   "repeat":{"type":"integer","default":1,"minimum":1,"maximum":100000000,"description":"how often"},
+                                   "mode":{"type":"string","enum":["a","b"],"default":"a","description":"a mode"}}})"});
+
+meshflow::StageRegistrar cat({.kind = "t_cat",
+                              .version = 1,
+                              .summary = "concatenates its inputs and `suffix`",
+                              .libraries = {},
+                              .run =
+                                  [](meshflow::StageContext& ctx) {
+                                    record_call(ctx);
+                                    std::string s;
+                                    for (auto& a : ctx.inputs()) s += mftest::read_text(a.path);
+                                    s += ctx.params()["suffix"].get<std::string>();
+                                    mftest::write_text(ctx.output("blob", "t_blob"), s);
+                                    ctx.stats()["bytes"] = s.size();
+                                  },
+                              .schema = R"({"type":"object","additionalProperties":false,"properties":{
+                                "suffix":{"type":"string","default":"","description":"appended text"}}})"});
+
+// Writes `chunks` chunks of 64 KiB, sleeping `ms` between them: a stage to kill mid-write.
+meshflow::StageRegistrar slow({.kind = "t_slow",
+                               .version = 1,
+                               .summary = "writes slowly",
+                               .libraries = {},
+                               .run =
+                                   [](meshflow::StageContext& ctx) {
+                                     record_call(ctx);
+                                     int chunks = ctx.params()["chunks"], ms = ctx.params()["ms"];
+                                     std::ofstream o(ctx.output("blob", "t_blob"), std::ios::binary);
+                                     std::string chunk(65536, 'x');
+                                     for (int i = 0; i < chunks; ++i) {
+                                       chunk[0] = char('a' + i % 26);
+                                       o << chunk << std::flush;
+                                       ctx.progress(double(i + 1) / chunks, "chunk " + std::to_string(i + 1));
+                                       std::this_thread::sleep_for(std::chrono::milliseconds(ms));
+                                     }
+                                   },
+                               .schema = R"({"type":"object","additionalProperties":false,"properties":{
+                                 "chunks":{"type":"integer","default":50,"minimum":1,"description":"chunks"},
+                                 "ms":{"type":"integer","default":20,"minimum":0,"description":"sleep per chunk"}}})"});
+
+meshflow::StageRegistrar fail({.kind = "t_fail",
+                               .version = 1,
+                               .summary = "fails with a StageError",
+                               .libraries = {},
+                               .run =
+                                   [](meshflow::StageContext& ctx) {
+                                     record_call(ctx);
+                                     ctx.output("blob", "t_blob");  // declared but never written
+                                     throw meshflow::StageError(ctx.params()["message"].get<std::string>());
+                                   },
+                               .schema = R"({"type":"object","additionalProperties":false,"required":["message"],"properties":{
+                                 "message":{"type":"string","description":"the error"}}})"});
+
+meshflow::StageRegistrar crash({.kind = "t_crash",
+                                .version = 1,
+                                .summary = "aborts",
+                                .libraries = {},
+                                .run = [](meshflow::StageContext& ctx) {
+                                  record_call(ctx);
+                                  std::fprintf(stderr, "about to abort\n");
+                                  std::abort();
+                                },
+                                .schema = R"({"type":"object","additionalProperties":false})"});
+
+meshflow::StageRegistrar file_kind({.kind = "t_file",
+                                    .version = 1,
+                                    .summary = "copies the file `path`",
+                                    .libraries = {},
+                                    .run =
+                                        [](meshflow::StageContext& ctx) {
+                                          record_call(ctx);
+                                          mftest::write_text(ctx.output("blob", "t_blob"),
+                                                             mftest::read_text(ctx.file(ctx.params()["path"])));
+                                        },
+                                    .schema = R"({"type":"object","additionalProperties":false,"required":["path"],"properties":{
+                                      "path":{"type":"string","x-meshflow-file":true,"description":"a file"}}})"});
+
+// Computes n values with ctx.threads() threads into preallocated slots: the output must not
+// depend on the thread count.
+meshflow::StageRegistrar par({.kind = "t_par",
+                              .version = 1,
+                              .summary = "parallel computation",
+                              .libraries = {},
+                              .run =
+                                  [](meshflow::StageContext& ctx) {
+                                    record_call(ctx);
+                                    int n = ctx.params()["n"];
+                                    int t = ctx.threads();
+                                    std::vector<double> v(size_t(n), 0.0);
+                                    std::vector<std::thread> pool;
+                                    for (int k = 0; k < t; ++k)
+                                      pool.emplace_back([&, k] {
+                                        for (int i = k; i < n; i += t) v[size_t(i)] = std::sin(0.001 * i) * std::exp(-1e-6 * i);
+                                      });
+                                    for (auto& th : pool) th.join();
+                                    std::ofstream o(ctx.output("blob", "t_blob"), std::ios::binary);
+                                    o.write(reinterpret_cast<const char*>(v.data()), std::streamsize(v.size() * sizeof(double)));
+                                    ctx.stats()["threads_used"] = t;
+                                  },
+                              .schema = R"({"type":"object","additionalProperties":false,"properties":{
+                                "n":{"type":"integer","default":100000,"minimum":1,"description":"values"}}})"});
+
+}  // namespace
