@@ -24,6 +24,7 @@
 #include <sys/prctl.h>
 #include <sys/resource.h>
 #include <sys/stat.h>
+#include <sys/statvfs.h>
 #include <sys/wait.h>
 #include <thread>
 #include <unistd.h>
@@ -131,6 +132,7 @@ class ChildContext final : public StageContext {
   int threads() const override { return threads_; }
 
   const std::vector<std::pair<std::string, std::string>>& declared() const { return outputs_; }
+  void send_error(const std::string& message) { send("E " + message); }
   const std::vector<std::string>& log_lines() const { return log_; }
 
  private:
@@ -186,9 +188,13 @@ class ChildContext final : public StageContext {
   } catch (...) {
     result = {{"ok", false}, {"error", "unknown exception"}, {"internal", true}};
   }
+  if (!result["ok"].get<bool>()) ctx.send_error(result["error"].get<std::string>());
   try {
     atomic_write(scratch / "result.json", result.dump(), scratch);
-  } catch (...) {
+  } catch (const std::exception& e) {
+    // No room for the result file (disk full): the message still reaches the engine.
+    ctx.send_error(result["ok"].get<bool>() ? std::string("could not record the stage's result: ") + e.what()
+                                            : result["error"].get<std::string>());
     std::_Exit(4);
   }
   std::fflush(stdout);
@@ -208,7 +214,7 @@ struct Running {
   KeyResult key;
   Clock::time_point start, last_touch;
   double fraction = -1;
-  std::string what, buffer;
+  std::string what, buffer, error;
   double last_printed = -1;
 };
 
@@ -279,6 +285,17 @@ void materialise(const Workflow& wf, const RunResult& rr, const fs::path& out_di
   }
 }
 
+// When a stage fails on a nearly full disk, say so: the stage's own message may only be a
+// short write.
+std::string disk_hint(const fs::path& root) {
+  struct statvfs st;
+  if (::statvfs(root.c_str(), &st) != 0) return {};
+  double free_bytes = double(st.f_bavail) * double(st.f_frsize);
+  if (free_bytes > 64e6 && free_bytes > 0.01 * double(st.f_blocks) * double(st.f_frsize)) return {};
+  return " (the cache's filesystem has only " + std::to_string(std::llround(free_bytes / 1024)) +
+         " KiB free: free some space, run `meshflow gc --max-size ...`, or use another cache with --cache DIR)";
+}
+
 }  // namespace
 
 RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
@@ -333,6 +350,31 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
     if (status == "ran") line("  ran     " + r.name + " (" + fmt(r.seconds, 2) + " s, " + fmt(r.peak_rss_mb, 0) + " MB)");
     else if (status == "cached") line("  cached  " + r.name);
     else if (status == "failed") line("  FAILED  " + r.name);
+  };
+
+  // Reads what a stage process sent: progress (P), log (L) and error (E) lines.
+  auto drain = [&](Running& r) {
+    char buf[4096];
+    ssize_t n;
+    while ((n = ::read(r.fd, buf, sizeof buf)) > 0) r.buffer.append(buf, size_t(n));
+    size_t nl;
+    while ((nl = r.buffer.find('\n')) != std::string::npos) {
+      std::string msg = r.buffer.substr(0, nl);
+      r.buffer.erase(0, nl + 1);
+      if (msg.rfind("P ", 0) == 0) {
+        std::istringstream in(msg.substr(2));
+        in >> r.fraction;
+        std::getline(in >> std::ws, r.what);
+        if (!tty && (r.fraction - r.last_printed >= 0.25 || r.fraction >= 1.0) && r.fraction > r.last_printed) {
+          line("          " + wf.stages[r.index].name + " " + std::to_string(int(std::lround(r.fraction * 100))) + "% " + r.what);
+          r.last_printed = r.fraction;
+        }
+      } else if (msg.rfind("E ", 0) == 0) {
+        r.error = msg.substr(2);
+      } else if (msg.rfind("L ", 0) == 0 && opt.verbose) {
+        line("          " + wf.stages[r.index].name + ": " + msg.substr(2));
+      }
+    }
   };
 
   line("meshflow: " + wf.name + " (" + wf.file.string() + "), " + std::to_string(wf.stages.size()) + " stages, cache " +
@@ -430,25 +472,7 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
     if (!pfds.empty()) ::poll(pfds.data(), pfds.size(), 200);
     else std::this_thread::sleep_for(std::chrono::milliseconds(200));
     for (auto& r : running) {
-      char buf[4096];
-      ssize_t n;
-      while ((n = ::read(r.fd, buf, sizeof buf)) > 0) r.buffer.append(buf, size_t(n));
-      size_t nl;
-      while ((nl = r.buffer.find('\n')) != std::string::npos) {
-        std::string msg = r.buffer.substr(0, nl);
-        r.buffer.erase(0, nl + 1);
-        if (msg.rfind("P ", 0) == 0) {
-          std::istringstream in(msg.substr(2));
-          in >> r.fraction;
-          std::getline(in >> std::ws, r.what);
-          if (!tty && (r.fraction - r.last_printed >= 0.25 || r.fraction >= 1.0) && r.fraction > r.last_printed) {
-            line("          " + wf.stages[r.index].name + " " + std::to_string(int(std::lround(r.fraction * 100))) + "% " + r.what);
-            r.last_printed = r.fraction;
-          }
-        } else if (msg.rfind("L ", 0) == 0 && opt.verbose) {
-          line("          " + wf.stages[r.index].name + ": " + msg.substr(2));
-        }
-      }
+      drain(r);
       if (secs(r.last_touch) > 2) {
         r.lock->keep_alive();
         r.last_touch = Clock::now();
@@ -463,6 +487,7 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
         ++k;
         continue;
       }
+      drain(r);  // what it sent just before exiting
       const StageDecl& d = wf.stages[r.index];
       auto& res = results[d.name];
       res.seconds = secs(r.start);
@@ -496,6 +521,8 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
       } else if (!result.is_null() && result.contains("error")) {
         res.error = result["error"].get<std::string>();
         if (result.value("internal", false)) res.error = "internal error in kind '" + d.kind + "': " + res.error;
+      } else if (!r.error.empty()) {
+        res.error = r.error;
       } else if (WIFSIGNALED(wstatus)) {
         int sig = WTERMSIG(wstatus);
         res.error = "the stage process was killed by signal " + std::to_string(sig) + " (" + strsignal(sig) + ")" +
@@ -507,6 +534,7 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
         std::string t = tail_of(r.scratch / "stage.out");
         if (!t.empty()) res.error += ". Its last output:\n" + t;
       }
+      if (status == "failed") res.error += disk_hint(cache.root());
       if (status == "failed")
         err << "error: " << wf.file.string() << ": stage '" << d.name << "' (kind " << d.kind << ") failed: " << res.error
             << "\n";

@@ -68,7 +68,9 @@ class StageContext {
   std::vector<const Artifact*> inputs_of(const std::string& type) const;
 
   // Declares output artifact `name` of `type` and returns the path the stage must write it
-  // to (a private scratch file). The engine hashes and stores it when run() returns.
+  // to (a private scratch file). The engine hashes and stores it when run() returns, so the
+  // stage must check its writes (stream state after close): a short write on a full disk
+  // must throw, or a truncated artifact would be stored as complete.
   virtual std::filesystem::path output(const std::string& name, const std::string& type) = 0;
 
   // Resolves a file parameter (a schema property with "x-meshflow-file": true) to the path the

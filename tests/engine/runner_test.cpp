@@ -317,3 +317,32 @@ TEST_CASE("CLI: dag, kinds, clean, bad workflow exit code 2") {
   CHECK(cli({"clean", f.wf.string(), "--cache", f.cache.string()}).code == 0);
   CHECK(!fs::exists(f.cache));
 }
+
+TEST_CASE("disk full: a clear message, non-zero exit, a consistent cache") {
+  Fixture f(R"(meshflow: 1
+name: full
+stages:
+  small: {kind: t_source, with: {text: "x"}}
+  big: {kind: t_source, with: {text: "0123456789abcdef", repeat: 200000}}
+)");
+  // A 1 MiB tmpfs as the cache (needs root, as in CI; elsewhere the case is reported skipped).
+  fs::path mnt = f.dir / "mnt";
+  fs::create_directories(mnt);
+  if (geteuid() != 0 || std::system(("mount -t tmpfs -o size=1m tmpfs " + mnt.string() + " 2>/dev/null").c_str()) != 0) {
+    MESSAGE("not root or tmpfs mount refused: disk-full case not run");
+    return;
+  }
+  struct Unmount {
+    fs::path p;
+    ~Unmount() { (void)!std::system(("umount " + p.string()).c_str()); }
+  } unmount{mnt};
+  auto r = cli({"run", f.wf.string(), "--cache", (mnt / "cache").string(), "--out", f.out.string(), "-j", "1"});
+  CHECK(r.code == 1);
+  INFO(r.err);
+  CHECK(r.err.find("No space left on device") != std::string::npos);
+  CHECK(r.err.find("KiB free") != std::string::npos);
+  CHECK(action_count(mnt / "cache") == 1);  // `small` completed, `big` left nothing
+  CHECK(tmp_count(mnt / "cache") == 0);
+  auto v = cli({"gc", f.wf.string(), "--cache", (mnt / "cache").string(), "--verify"});
+  CHECK(v.code == 0);
+}

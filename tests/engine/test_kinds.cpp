@@ -143,7 +143,9 @@ meshflow::StageRegistrar source({.kind = "t_source",
                                        std::string t = ctx.params()["text"];
                                        int n = ctx.params()["repeat"];
                                        std::ofstream o(ctx.output("blob", "t_blob"), std::ios::binary);
-                                       for (int i = 0; i < n; ++i) o << t;
+                                       for (int i = 0; i < n && o; ++i) o << t;
+                                       o.close();
+                                       if (!o) throw meshflow::StageError(std::string("cannot write the artifact: ") + std::strerror(errno));
                                      },
                                  .schema = R"({"type":"object","additionalProperties":false,"properties":{
                                    "text":{"type":"string","default":"hello","description":"what to write"},
