@@ -146,13 +146,16 @@ void run(StageContext& ctx) {
   }
   ctx.progress(0.8, "indexing");
   Shape shape = cad::occt::make_shape(s, units);
-  int free_edges = 0, small_edges = 0;
+  int free_edges = 0, small_edges = 0, degenerate = 0;
   cad::Box bb = shape.box();
   double diag = std::hypot(bb.hi.x - bb.lo.x, bb.hi.y - bb.lo.y, bb.hi.z - bb.lo.z);
   double min_len = 1e300;
   for (int e = 0; e < shape.num_edges(); ++e) {
-    if (shape.edge_degenerate(e)) continue;
-    if (shape.edge_faces(e).size() == 1) ++free_edges;
+    if (shape.edge_degenerate(e)) {
+      ++degenerate;
+      continue;
+    }
+    if (shape.edge_faces(e).size() == 1 && !shape.edge_is_seam(e, shape.edge_faces(e)[0])) ++free_edges;
     double L = shape.edge_length(e);
     min_len = std::min(min_len, L);
     if (L < 1e-6 * diag) ++small_edges;
@@ -168,6 +171,8 @@ void run(StageContext& ctx) {
   st["vertices"] = shape.num_vertices();
   st["free_edges"] = free_edges;
   st["small_edges"] = small_edges;
+  st["degenerate_edges"] = degenerate;  // collapsed edges (poles, or edges shorter than the vertex tolerance)
+  st["multiple_edges"] = (int)shape.multiple_edges().size();
   st["shortest_edge"] = min_len == 1e300 ? 0.0 : min_len;
   st["bbox_diagonal"] = diag;
   if (shape.num_faces() == 0)

@@ -1,0 +1,409 @@
+// meshflow stage kind `heal` (paper §III.A): sews, fixes and closes a shape into a watertight
+// fluid solid, reporting every fix, and refuses with a precise message what it cannot repair.
+//
+// Steps (each optional step reported in stats.fixes with counts):
+//   1. duplicate faces (same surface within tolerance) are dropped        [sew]
+//   2. sewing of all faces with the tolerance (BRepBuilderAPI_Sewing)       [sew]
+//   3. ShapeFix_Shape (wires, edges, orientation, tolerances)
+//   4. small edges (< tolerance) merged into neighbours (ShapeFix_Wireframe) [fix_small_edges]
+//   5. spot/strip faces (< tolerance wide) removed (ShapeFix_FixSmallFace) [fix_small_faces]
+//   6. the fluid solid: the given closed shell(s) (outer minus inner), or a box around the body
+//      minus the body                                                      [fluid]
+//   7. same-domain faces and edges unified (ShapeUpgrade_UnifySameDomain)  [unify]
+//   8. checks: BRepCheck valid, every edge bounds exactly two faces, positive volume, no face
+//      narrower than the tolerance. Failure of any check is a StageError naming the entities.
+// Face tags: carried over from the input by geometry (a point inside each new face lies on the
+// old face), or, when the input has none (a raw STEP), by the box rule (cad::occt::tags_by_box).
+#include "engine/stage.hpp"
+#include "stages/cad/cad.hpp"
+#include "stages/cad/occt.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <BRepAlgoAPI_Cut.hxx>
+#include <BRepBndLib.hxx>
+#include <BRepBuilderAPI_MakeSolid.hxx>
+#include <BRepBuilderAPI_MakeVertex.hxx>
+#include <BRepBuilderAPI_Sewing.hxx>
+#include <BRepCheck_Analyzer.hxx>
+#include <BRepExtrema_DistShapeShape.hxx>
+#include <BRepGProp.hxx>
+#include <BRepPrimAPI_MakeBox.hxx>
+#include <BRep_Builder.hxx>
+#include <BRep_Tool.hxx>
+#include <Bnd_Box.hxx>
+#include <GProp_GProps.hxx>
+#include <ShapeExtend_Status.hxx>
+#include <ShapeFix_FixSmallFace.hxx>
+#include <ShapeFix_Shape.hxx>
+#include <ShapeFix_Solid.hxx>
+#include <ShapeFix_Wireframe.hxx>
+#include <ShapeUpgrade_UnifySameDomain.hxx>
+#include <Standard_Failure.hxx>
+#include <Standard_Version.hxx>
+#include <TopExp.hxx>
+#include <TopExp_Explorer.hxx>
+#include <TopTools_IndexedMapOfShape.hxx>
+#include <TopoDS.hxx>
+#include <TopoDS_Compound.hxx>
+#include <TopoDS_Shell.hxx>
+#include <TopoDS_Solid.hxx>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <sstream>
+
+namespace meshflow::heal {
+namespace {
+using cad::Shape;
+using cad::Tag;
+using nlohmann::json;
+
+struct Counts {
+  int faces = 0, edges = 0, free_edges = 0, multiple_edges = 0, small_edges = 0, shells = 0, solids = 0;
+};
+
+Counts count(const TopoDS_Shape& s, double tol) {
+  Shape sh = cad::occt::make_shape(s, "");
+  Counts c;
+  c.faces = sh.num_faces();
+  c.edges = sh.num_edges();
+  c.shells = sh.num_shells();
+  c.solids = sh.num_solids();
+  c.free_edges = (int)sh.free_edges().size();
+  c.multiple_edges = (int)sh.multiple_edges().size();
+  for (int e = 0; e < sh.num_edges(); ++e)
+    if (!sh.edge_degenerate(e) && sh.edge_length(e) < tol) ++c.small_edges;
+  return c;
+}
+json to_json(const Counts& c) {
+  return {{"faces", c.faces}, {"edges", c.edges}, {"free_edges", c.free_edges}, {"multiple_edges", c.multiple_edges},
+          {"small_edges", c.small_edges}, {"shells", c.shells}, {"solids", c.solids}};
+}
+
+std::string fmt(double v) {
+  char b[32];
+  std::snprintf(b, sizeof b, "%.6g", v);
+  return b;
+}
+std::string pt(const cad::Vec3& p) { return "(" + fmt(p.x) + ", " + fmt(p.y) + ", " + fmt(p.z) + ")"; }
+
+// "edge 4 from (..) to (..), length L, bounding only face 2 (...)" for up to `maxn` edges.
+std::string describe_edges(const Shape& s, const std::vector<int>& edges, size_t maxn = 8) {
+  std::string out;
+  for (size_t i = 0; i < edges.size() && i < maxn; ++i) {
+    int e = edges[i];
+    auto r = s.edge_range(e);
+    out += "\n  - edge " + std::to_string(e) + " from " + pt(s.edge_point(e, r.lo)) + " to " + pt(s.edge_point(e, r.hi)) +
+           ", length " + fmt(s.edge_length(e)) + ", on ";
+    auto fs = s.edge_faces(e);
+    for (size_t k = 0; k < fs.size(); ++k) out += (k ? " and " : "") + cad::occt::describe_face(s, fs[k]);
+  }
+  if (edges.size() > maxn) out += "\n  - ... and " + std::to_string(edges.size() - maxn) + " more";
+  return out;
+}
+
+double face_area(const TopoDS_Shape& f) {
+  GProp_GProps g;
+  BRepGProp::SurfaceProperties(f, g);
+  return g.Mass();
+}
+double perimeter(const TopoDS_Shape& f) {
+  GProp_GProps g;
+  BRepGProp::LinearProperties(f, g);
+  return g.Mass();
+}
+
+// Drops faces that duplicate an earlier face (an interior point of each lies on the other
+// within tol and the areas agree); returns the kept faces as a compound.
+TopoDS_Shape drop_duplicates(const TopoDS_Shape& s, double tol, int& dropped, StageContext& ctx) {
+  TopTools_IndexedMapOfShape faces;
+  TopExp::MapShapes(s, TopAbs_FACE, faces);
+  int n = faces.Extent();
+  std::vector<double> area(n);
+  std::vector<Bnd_Box> box(n);
+  std::vector<gp_Pnt> inner(n);
+  for (int i = 0; i < n; ++i) {
+    area[i] = face_area(faces(i + 1));
+    BRepBndLib::Add(faces(i + 1), box[i]);
+    box[i].Enlarge(tol);
+    inner[i] = cad::occt::interior_point(TopoDS::Face(faces(i + 1)));
+  }
+  auto on = [&](const gp_Pnt& p, int j) {
+    BRepExtrema_DistShapeShape d(BRepBuilderAPI_MakeVertex(p).Vertex(), faces(j + 1));
+    return d.IsDone() && d.Value() <= tol;
+  };
+  std::vector<char> drop(n, 0);
+  for (int j = 0; j < n; ++j)
+    for (int i = 0; i < j && !drop[j]; ++i) {
+      if (drop[i] || box[i].IsOut(box[j])) continue;
+      if (std::abs(area[i] - area[j]) > 1e-6 * std::max(area[i], area[j]) + tol * tol) continue;
+      if (on(inner[j], i) && on(inner[i], j)) {
+        drop[j] = 1;
+        ctx.log("heal: face " + std::to_string(j) + " duplicates face " + std::to_string(i) + ": dropped");
+      }
+    }
+  dropped = (int)std::count(drop.begin(), drop.end(), 1);
+  if (!dropped) return s;
+  TopoDS_Compound c;
+  BRep_Builder b;
+  b.MakeCompound(c);
+  for (int i = 0; i < n; ++i)
+    if (!drop[i]) b.Add(c, faces(i + 1));
+  return c;
+}
+
+TopoDS_Solid solid_of(const TopoDS_Shell& sh) {
+  BRepBuilderAPI_MakeSolid ms(sh);
+  TopoDS_Solid so = ms.Solid();
+  ShapeFix_Solid fs(so);
+  fs.Perform();
+  return TopoDS::Solid(fs.Solid());  // oriented so that its volume is positive
+}
+double volume(const TopoDS_Shape& s) {
+  GProp_GProps g;
+  BRepGProp::VolumeProperties(s, g);
+  return g.Mass();
+}
+double diag_of(const Bnd_Box& b) { return b.IsVoid() ? 0 : std::sqrt(b.SquareExtent()); }
+
+void run(StageContext& ctx) {
+  const auto& P = ctx.params();
+  Shape in = Shape::load(ctx.input("shape").path);
+  cad::occt::Log log([&](const std::string& s) { ctx.log(s); });
+  const std::string src = "heal stage '" + ctx.stage_name() + "'";
+
+  Bnd_Box bb;
+  BRepBndLib::Add(cad::occt::shape(in), bb);
+  const double diag = diag_of(bb);
+  double tol = P.at("tolerance").get<double>();
+  if (tol <= 0) tol = 1e-6 * diag;
+  const bool sew = P.at("sew").get<bool>(), small_edges = P.at("fix_small_edges").get<bool>(),
+             small_faces = P.at("fix_small_faces").get<bool>(), unify = P.at("unify").get<bool>();
+  const std::string fluid_mode = P.at("fluid").get<std::string>(), tag_mode = P.at("tags").get<std::string>();
+  auto& st = ctx.stats();
+  st["tolerance"] = tol;
+  json fixes = json::object();
+  TopoDS_Shape s = cad::occt::shape(in);
+  st["before"] = to_json(count(s, tol));
+  if (in.num_faces() == 0) throw StageError(src + ": the input shape has no faces: nothing to heal");
+
+  try {
+    // 1-2. duplicates, sewing
+    if (sew) {
+      ctx.progress(0.05, "duplicate faces");
+      int dropped = 0;
+      s = drop_duplicates(s, tol, dropped, ctx);
+      fixes["duplicate_faces_removed"] = dropped;
+      ctx.progress(0.15, "sewing");
+      BRepBuilderAPI_Sewing sw(tol, Standard_True, Standard_True, Standard_True, Standard_False);
+      sw.Add(s);
+      sw.Perform();
+      s = sw.SewedShape();
+      fixes["sewing"] = {{"contiguous_edges", sw.NbContigousEdges()}, {"free_edges_after", sw.NbFreeEdges()},
+                         {"multiple_edges_after", sw.NbMultipleEdges()}, {"degenerated_shapes", sw.NbDegeneratedShapes()},
+                         {"deleted_faces", sw.NbDeletedFaces()}};
+      ctx.log("heal: sewing joined " + std::to_string(sw.NbContigousEdges()) + " edge pairs; free edges left " +
+              std::to_string(sw.NbFreeEdges()));
+    }
+    // 3. ShapeFix
+    ctx.progress(0.3, "ShapeFix");
+    {
+      Handle(ShapeFix_Shape) fx = new ShapeFix_Shape(s);
+      fx->SetPrecision(tol);
+      fx->SetMaxTolerance(std::max(tol, 1e-3 * diag));
+      fx->Perform();
+      s = fx->Shape();
+      fixes["shapefix"] = {{"done", (bool)fx->Status(ShapeExtend_DONE)}, {"failed", (bool)fx->Status(ShapeExtend_FAIL)}};
+    }
+    // 4. small edges
+    if (small_edges) {
+      ctx.progress(0.4, "small edges");
+      int before = count(s, tol).small_edges;
+      Handle(ShapeFix_Wireframe) wf = new ShapeFix_Wireframe(s);
+      wf->SetPrecision(tol);
+      wf->SetMaxTolerance(std::max(tol, 1e-3 * diag));
+      wf->ModeDropSmallEdges() = Standard_True;
+      wf->FixSmallEdges();
+      wf->FixWireGaps();
+      s = wf->Shape();
+      int after = count(s, tol).small_edges;
+      fixes["small_edges"] = {{"before", before}, {"after", after}};
+    }
+    // 5. small faces
+    if (small_faces) {
+      ctx.progress(0.5, "small faces");
+      int before = count(s, tol).faces;
+      ShapeFix_FixSmallFace sf;
+      sf.Init(s);
+      sf.SetPrecision(tol);
+      sf.SetMaxTolerance(std::max(tol, 1e-3 * diag));
+      sf.Perform();
+      s = sf.FixShape();
+      fixes["small_faces_removed"] = before - count(s, tol).faces;
+    }
+  } catch (const Standard_Failure& e) {
+    throw StageError(src + ": OpenCASCADE failed while repairing the shape (" + e.GetMessageString() +
+                     "); try another tolerance or repair the CAD in its source system");
+  }
+
+  // 6. the fluid solid
+  ctx.progress(0.6, "fluid solid");
+  {
+    Shape cur = cad::occt::make_shape(s, in.units());
+    auto fe = cur.free_edges();
+    if (!fe.empty())
+      throw StageError(src + ": the shape is not closed after sewing with tolerance " + fmt(tol) + ": " +
+                       std::to_string(fe.size()) + " free edge(s) bound only one face (a missing face or a gap wider "
+                       "than the tolerance):" + describe_edges(cur, fe) +
+                       "\nAdd the missing face in the CAD, or raise `tolerance` if the gap is a modelling inaccuracy.");
+    auto me = cur.multiple_edges();
+    if (!me.empty())
+      throw StageError(src + ": " + std::to_string(me.size()) +
+                       " edge(s) are shared by more than two faces (overlapping, duplicated or T-joined faces):" +
+                       describe_edges(cur, me) + "\nRemove the extra faces in the CAD.");
+  }
+  std::vector<TopoDS_Solid> solids;
+  for (TopExp_Explorer ex(s, TopAbs_SOLID); ex.More(); ex.Next()) solids.push_back(TopoDS::Solid(ex.Current()));
+  if (solids.empty())
+    for (TopExp_Explorer ex(s, TopAbs_SHELL); ex.More(); ex.Next()) solids.push_back(solid_of(TopoDS::Shell(ex.Current())));
+  if (solids.empty()) throw StageError(src + ": the shape holds no shell: nothing can enclose a fluid");
+  // outer first: the largest bounding box
+  std::stable_sort(solids.begin(), solids.end(), [](const TopoDS_Solid& a, const TopoDS_Solid& b) {
+    Bnd_Box x, y;
+    BRepBndLib::Add(a, x);
+    BRepBndLib::Add(b, y);
+    return x.SquareExtent() > y.SquareExtent();
+  });
+  TopoDS_Shape fluid;
+  bool body_in_box = false;
+  try {
+    if (fluid_mode == "box") {
+      Bnd_Box body;
+      BRepBndLib::AddOptimal(s, body, Standard_False, Standard_False);
+      body.SetGap(0.0);
+      double x0, y0, z0, x1, y1, z1;
+      body.Get(x0, y0, z0, x1, y1, z1);
+      double pad = P.at("box_padding").get<double>() * std::max({x1 - x0, y1 - y0, z1 - z0});
+      TopoDS_Shape box = BRepPrimAPI_MakeBox(gp_Pnt(x0 - pad, y0 - pad, z0 - pad), gp_Pnt(x1 + pad, y1 + pad, z1 + pad)).Shape();
+      TopoDS_Compound bodies;
+      BRep_Builder b;
+      b.MakeCompound(bodies);
+      for (auto& so : solids) b.Add(bodies, so);
+      BRepAlgoAPI_Cut cut(box, bodies);
+      if (!cut.IsDone() || cut.HasErrors()) throw StageError(src + ": cutting the body from the far-field box failed");
+      fluid = cut.Shape();
+      body_in_box = true;
+      fixes["fluid"] = "box minus " + std::to_string(solids.size()) + " body solid(s)";
+    } else if (solids.size() == 1) {
+      fluid = solids[0];
+      fixes["fluid"] = "given closed shell";
+    } else {
+      TopoDS_Compound inner;
+      BRep_Builder b;
+      b.MakeCompound(inner);
+      for (size_t i = 1; i < solids.size(); ++i) b.Add(inner, solids[i]);
+      BRepAlgoAPI_Cut cut(solids[0], inner);
+      if (!cut.IsDone() || cut.HasErrors())
+        throw StageError(src + ": the input has " + std::to_string(solids.size()) +
+                         " closed shells and subtracting the inner ones from the outer one failed; use fluid: given with "
+                         "one closed shell, or fluid: box with the body alone");
+      fluid = cut.Shape();
+      fixes["fluid"] = "outer shell minus " + std::to_string(solids.size() - 1) + " inner shell(s)";
+    }
+    // 7. unify
+    if (unify) {
+      ctx.progress(0.75, "unify");
+      int before = count(fluid, tol).faces;
+      ShapeUpgrade_UnifySameDomain un(fluid, Standard_True, Standard_True, Standard_False);
+      un.SetLinearTolerance(tol);
+      un.Build();
+      fluid = un.Shape();
+      fixes["unified_faces"] = before - count(fluid, tol).faces;
+    }
+  } catch (const Standard_Failure& e) {
+    throw StageError(src + ": OpenCASCADE failed building the fluid solid (" + e.GetMessageString() + ")");
+  }
+  {  // a single solid
+    std::vector<TopoDS_Shape> so;
+    for (TopExp_Explorer ex(fluid, TopAbs_SOLID); ex.More(); ex.Next()) so.push_back(ex.Current());
+    if (so.size() != 1)
+      throw StageError(src + ": the fluid region is made of " + std::to_string(so.size()) +
+                       " disconnected solids; a mesh needs one connected fluid domain (is a body outside the far field?)");
+    fluid = so[0];
+  }
+
+  // 8. checks
+  ctx.progress(0.85, "checking");
+  std::vector<Tag> tags;
+  bool have_tags = false;
+  for (int f = 0; f < in.num_faces(); ++f) have_tags |= in.face_tag(f) != Tag::none;
+  if (tag_mode == "box" || (tag_mode == "auto" && !have_tags)) {
+    tags = cad::occt::tags_by_box(fluid, 1e-6 * diag);
+    if (body_in_box)
+      for (auto& t : tags)
+        if (t == Tag::symmetry) t = Tag::farfield;
+  } else {
+    tags = cad::occt::transfer_tags(in, fluid, std::max(10 * tol, 1e-7 * diag));
+    if (body_in_box) {  // new box faces
+      auto bt = cad::occt::tags_by_box(fluid, 1e-6 * diag);
+      for (size_t i = 0; i < tags.size(); ++i)
+        if (bt[i] != Tag::wall) tags[i] = Tag::farfield;
+    }
+  }
+  Shape out = cad::occt::make_shape(fluid, in.units(), tags);
+  if (!out.valid()) {
+    std::string bad;
+    int nbad = 0;
+    for (int f = 0; f < out.num_faces(); ++f) {
+      BRepCheck_Analyzer a(out.impl().face(f));
+      if (!a.IsValid() && nbad++ < 8) bad += "\n  - " + cad::occt::describe_face(out, f);
+    }
+    throw StageError(src + ": the healed solid fails OpenCASCADE's validity check (BRepCheck)" +
+                     (nbad ? ": invalid faces:" + bad : std::string(" (self-intersecting or inconsistent topology)")) +
+                     "\nRepair the CAD in its source system or try another tolerance.");
+  }
+  auto fe = out.free_edges(), me = out.multiple_edges();
+  if (!fe.empty() || !me.empty())
+    throw StageError(src + ": the fluid solid is not watertight:" + describe_edges(out, fe.empty() ? me : fe));
+  if (out.volume() <= 0)
+    throw StageError(src + ": the fluid solid has volume " + fmt(out.volume()) + " <= 0 (inside out)");
+  std::vector<int> slivers;
+  std::string sliver_msg;
+  for (int f = 0; f < out.num_faces(); ++f) {
+    double a = out.face_area(f), per = perimeter(out.impl().face(f));
+    double width = per > 0 ? 2 * a / per : 0;
+    if (width < tol) {
+      slivers.push_back(f);
+      sliver_msg += "\n  - " + cad::occt::describe_face(out, f) + ": width about " + fmt(width);
+    }
+  }
+  if (!slivers.empty())
+    throw StageError(src + ": " + std::to_string(slivers.size()) + " face(s) are narrower than the tolerance " + fmt(tol) +
+                     " (slivers that cannot be meshed)" + (small_faces ? " and fix_small_faces could not remove them:" : ":") +
+                     sliver_msg + "\nMerge or remove them in the CAD" +
+                     (small_faces ? std::string(".") : std::string(", or set fix_small_faces: true.")));
+  if (tags.end() != std::find(tags.begin(), tags.end(), Tag::none)) {
+    int nnone = (int)std::count(tags.begin(), tags.end(), Tag::none);
+    ctx.log("heal: warning: " + std::to_string(nnone) + " face(s) have no tag");
+  }
+
+  st["fixes"] = fixes;
+  st["after"] = to_json(count(fluid, tol));
+  json summary = cad::occt::summarize(out);
+  st["volume"] = summary["volume"];
+  st["area"] = summary["area"];
+  st["face_tags"] = summary["face_tags"];
+  st["watertight"] = true;
+  out.save(ctx.output("shape", "shape"));
+  ctx.progress(1.0, "done");
+}
+
+StageRegistrar reg({.kind = "heal",
+                    .version = 1,
+                    .summary = "sew, fix and close the CAD into a watertight fluid solid; refuse what cannot be repaired",
+                    .libraries = {"OCCT " OCC_VERSION_COMPLETE},
+                    .run = run});
+}  // namespace
+}  // namespace meshflow::heal

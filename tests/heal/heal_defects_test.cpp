@@ -1,0 +1,160 @@
+// heal on defects made here (OCCT is used to make them: this test is a leaf of stages/heal):
+// a face moved by 1e-5, a face deleted, a sliver face, a duplicated face.
+#include <doctest/doctest.h>
+
+#include "../cad/test_context.hpp"
+#include "stages/cad/cad.hpp"
+#include "stages/cad/occt.hpp"
+
+#include <BRepBuilderAPI_MakePolygon.hxx>
+#include <BRepBuilderAPI_MakeFace.hxx>
+#include <BRepBuilderAPI_Transform.hxx>
+#include <BRepPrimAPI_MakeBox.hxx>
+#include <BRepPrimAPI_MakePrism.hxx>
+#include <BRep_Builder.hxx>
+#include <TopExp_Explorer.hxx>
+#include <TopoDS.hxx>
+#include <TopoDS_Compound.hxx>
+#include <gp_Trsf.hxx>
+
+#include <fstream>
+#include <iterator>
+
+using meshflow::StageError;
+using meshflow::cad::Shape;
+using meshflow::testing::TestContext;
+namespace occt = meshflow::cad::occt;
+
+namespace {
+// The 6 faces of a unit box as separate (unsewn) faces, optionally transformed.
+std::vector<TopoDS_Shape> box_faces() {
+  TopoDS_Shape box = BRepPrimAPI_MakeBox(1.0, 1.0, 1.0).Shape();
+  std::vector<TopoDS_Shape> f;
+  for (TopExp_Explorer ex(box, TopAbs_FACE); ex.More(); ex.Next())
+    f.push_back(BRepBuilderAPI_Transform(ex.Current(), gp_Trsf(), Standard_True).Shape());  // deep copy
+  return f;
+}
+TopoDS_Shape compound(const std::vector<TopoDS_Shape>& v) {
+  TopoDS_Compound c;
+  BRep_Builder b;
+  b.MakeCompound(c);
+  for (auto& s : v) b.Add(c, s);
+  return c;
+}
+struct Run {
+  std::unique_ptr<TestContext> ctx;
+  meshflow::Artifact input;
+  std::filesystem::path dir;
+};
+// Saves `s` as a shape artifact and returns a heal context on it.
+std::unique_ptr<TestContext> heal_on(const TopoDS_Shape& s, nlohmann::json params, std::filesystem::path& keep) {
+  keep = meshflow::testing::scratch_dir("defect");
+  meshflow::Artifact a;
+  a.name = "shape";
+  a.type = "shape";
+  a.path = keep / "in.mfshape";
+  occt::make_shape(s, "m").save(a.path);
+  return std::make_unique<TestContext>("heal", params, std::vector<meshflow::Artifact>{a});
+}
+}  // namespace
+
+TEST_CASE("defect: a face moved by 1e-5 is sewn with tolerance 1e-4 and refused with 1e-7") {
+  auto f = box_faces();
+  gp_Trsf t;
+  t.SetTranslation(gp_Vec(0, 0, 1e-5));
+  f[5] = BRepBuilderAPI_Transform(f[5], t, Standard_True).Shape();
+  std::filesystem::path d1, d2;
+  auto h = heal_on(compound(f), {{"tolerance", 1e-4}}, d1);
+  h->run();
+  Shape s = Shape::load(h->artifact("shape").path);
+  CHECK(s.watertight());
+  CHECK(s.num_faces() == 6);
+  CHECK(s.volume() == doctest::Approx(1.0).epsilon(1e-4));
+  CHECK(h->stats_["before"]["free_edges"] == 24);
+  CHECK(h->stats_["fixes"]["sewing"]["contiguous_edges"] == 12);
+  auto strict = heal_on(compound(f), {{"tolerance", 1e-7}}, d2);
+  CHECK_THROWS_WITH_AS(strict->run(), doctest::Contains("free edge(s)"), StageError);
+  std::filesystem::remove_all(d1);
+  std::filesystem::remove_all(d2);
+}
+
+TEST_CASE("defect: a deleted face is refused, naming the four edges around the hole") {
+  auto f = box_faces();
+  f.pop_back();
+  std::filesystem::path d;
+  auto h = heal_on(compound(f), nlohmann::json::object(), d);
+  try {
+    h->run();
+    FAIL("an open box must be refused");
+  } catch (const StageError& e) {
+    std::string m = e.what();
+    CHECK(m.find("4 free edge(s)") != std::string::npos);
+    CHECK(m.find("not closed") != std::string::npos);
+  }
+  std::filesystem::remove_all(d);
+}
+
+TEST_CASE("defect: a sliver face is removed by default and refused when sewing and small-entity fixes are off") {
+  // a prism whose section has a 1e-6 long side: its side face is a 1e-6 x 1 strip
+  BRepBuilderAPI_MakePolygon poly;
+  for (auto [x, y] : std::vector<std::pair<double, double>>{{0, 0}, {1, 0}, {1, 1}, {0, 1}, {0, 1 - 1e-6}}) poly.Add(gp_Pnt(x, y, 0));
+  poly.Close();
+  TopoDS_Face sec = BRepBuilderAPI_MakeFace(poly.Wire());
+  TopoDS_Shape prism = BRepPrimAPI_MakePrism(sec, gp_Vec(0, 0, 1)).Shape();
+  REQUIRE(occt::make_shape(prism, "m").num_faces() == 7);
+  std::filesystem::path d1, d2;
+  auto h = heal_on(prism, {{"tolerance", 1e-5}}, d1);
+  h->run();
+  Shape s = Shape::load(h->artifact("shape").path);
+  CHECK(s.watertight());
+  CHECK(s.num_faces() == 6);  // the strip and the split side merged into one face
+  for (int i = 0; i < s.num_faces(); ++i) CHECK(s.face_area(i) > 0.5);
+  auto off = heal_on(prism, {{"tolerance", 1e-5}, {"sew", false}, {"fix_small_edges", false}, {"fix_small_faces", false}, {"unify", false}}, d2);
+  CHECK_THROWS_WITH_AS(off->run(), doctest::Contains("narrower than the tolerance"), StageError);
+  std::filesystem::remove_all(d1);
+  std::filesystem::remove_all(d2);
+}
+
+TEST_CASE("defect: a duplicated face is dropped before sewing") {
+  auto f = box_faces();
+  f.push_back(BRepBuilderAPI_Transform(f[2], gp_Trsf(), Standard_True).Shape());
+  std::filesystem::path d;
+  auto h = heal_on(compound(f), nlohmann::json::object(), d);
+  h->run();
+  CHECK(h->stats_["fixes"]["duplicate_faces_removed"] == 1);
+  Shape s = Shape::load(h->artifact("shape").path);
+  CHECK(s.watertight());
+  CHECK(s.num_faces() == 6);
+  std::filesystem::remove_all(d);
+}
+
+TEST_CASE("heal keeps the tags of a tagged input and is deterministic") {
+  TestContext g("naca_wing", {{"span", 0.8}});
+  g.run();
+  TestContext h1("heal", nlohmann::json::object(), {g.artifact("shape")});
+  TestContext h2("heal", nlohmann::json::object(), {g.artifact("shape")});
+  h1.run();
+  h2.run();
+  Shape in = Shape::load(g.artifact("shape").path), out = Shape::load(h1.artifact("shape").path);
+  CHECK(out.watertight());
+  CHECK(out.num_faces() == in.num_faces());
+  for (auto t : {meshflow::cad::Tag::wall, meshflow::cad::Tag::farfield, meshflow::cad::Tag::symmetry})
+    CHECK(out.faces_with_tag(t).size() == in.faces_with_tag(t).size());
+  CHECK(out.volume() == doctest::Approx(in.volume()).epsilon(1e-9));
+  std::ifstream a(h1.artifact("shape").path), b(h2.artifact("shape").path);
+  std::string sa((std::istreambuf_iterator<char>(a)), {}), sb((std::istreambuf_iterator<char>(b)), {});
+  CHECK(sa == sb);
+}
+
+TEST_CASE("heal: fluid: box puts a closed body in a far-field box") {
+  TopoDS_Shape body = BRepPrimAPI_MakeBox(gp_Pnt(0, 0, 0), 1, 2, 3).Shape();
+  std::filesystem::path d;
+  auto h = heal_on(body, {{"fluid", "box"}, {"box_padding", 2.0}}, d);
+  h->run();
+  Shape s = Shape::load(h->artifact("shape").path);
+  CHECK(s.watertight());
+  CHECK(s.faces_with_tag(meshflow::cad::Tag::wall).size() == 6);
+  CHECK(s.faces_with_tag(meshflow::cad::Tag::farfield).size() == 6);
+  CHECK(s.volume() == doctest::Approx(13.0 * 14 * 15 - 6).epsilon(1e-9));
+  std::filesystem::remove_all(d);
+}
