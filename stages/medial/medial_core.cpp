@@ -1,0 +1,323 @@
+// meshflow medial — the CGAL part: Delaunay of the samples, poles, filter, LFS, halos, and the
+// kd-tree behind NearestIndex. The only translation unit of the project that includes CGAL
+// for the medial stage (no OpenCASCADE here). Method: see medial.hpp.
+#include "stages/medial/medial.hpp"
+
+#include "engine/stage.hpp"
+
+#include <CGAL/Delaunay_triangulation_3.h>
+#include <CGAL/Delaunay_triangulation_cell_base_3.h>
+#include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
+#include <CGAL/Orthogonal_k_neighbor_search.h>
+#include <CGAL/Search_traits_3.h>
+#include <CGAL/Search_traits_adapter.h>
+#include <CGAL/Triangulation_cell_base_with_info_3.h>
+#include <CGAL/Triangulation_vertex_base_with_info_3.h>
+#include <CGAL/property_map.h>
+#include <boost/iterator/counting_iterator.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <numeric>
+#include <string>
+
+namespace meshflow::medial {
+namespace {
+
+using K = CGAL::Exact_predicates_inexact_constructions_kernel;
+using Vb = CGAL::Triangulation_vertex_base_with_info_3<std::int32_t, K>;
+using Cb = CGAL::Triangulation_cell_base_with_info_3<std::int32_t, K, CGAL::Delaunay_triangulation_cell_base_3<K>>;
+using Tds = CGAL::Triangulation_data_structure_3<Vb, Cb>;
+using DT = CGAL::Delaunay_triangulation_3<K, Tds>;
+
+double now() {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+Vec3 sub(const Vec3& a, const Vec3& b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
+double dot(const Vec3& a, const Vec3& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+Vec3 cross(const Vec3& a, const Vec3& b) {
+  return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
+}
+double norm(const Vec3& a) { return std::sqrt(dot(a, a)); }
+
+struct CellRec {
+  std::array<std::int32_t, 4> ids{};  // sample ids, ascending
+  Vec3 c{};
+  double r = 0;
+  bool valid = false;
+};
+
+// Circumcentre from the vertices in ascending id order (independent of CGAL's vertex order).
+void circumcentre(const std::vector<Sample>& S, CellRec& rec) {
+  const Vec3& a = S[rec.ids[0]].p;
+  Vec3 b = sub(S[rec.ids[1]].p, a), c = sub(S[rec.ids[2]].p, a), d = sub(S[rec.ids[3]].p, a);
+  Vec3 cd = cross(c, d), db = cross(d, b), bc = cross(b, c);
+  double det = dot(b, cd);
+  double L = std::max({norm(b), norm(c), norm(d), norm(sub(c, b)), norm(sub(d, b)), norm(sub(d, c))});
+  if (!(std::abs(det) > 1e-12 * L * L * L)) return;  // flat: the centre is undefined
+  double bb = dot(b, b), cc = dot(c, c), dd = dot(d, d);
+  Vec3 x{(bb * cd[0] + cc * db[0] + dd * bc[0]) / (2 * det), (bb * cd[1] + cc * db[1] + dd * bc[1]) / (2 * det),
+         (bb * cd[2] + cc * db[2] + dd * bc[2]) / (2 * det)};
+  double r = norm(x);
+  // consistency: the centre must be equidistant from the four vertices
+  for (const Vec3* q : {&b, &c, &d})
+    if (!(std::abs(norm(sub(x, *q)) - r) <= 1e-7 * std::max(r, L))) return;
+  rec.c = {a[0] + x[0], a[1] + x[1], a[2] + x[2]};
+  rec.r = r;
+  rec.valid = std::isfinite(r);
+}
+
+bool share_face(const Sample& a, const Sample& b) {
+  for (int fa : a.faces)
+    for (int fb : b.faces)
+      if (fa >= 0 && fa == fb) return true;
+  return false;
+}
+
+double angle_deg(const Vec3& a, const Vec3& b) {
+  double na = norm(a), nb = norm(b);
+  if (na == 0 || nb == 0) return 0;
+  double c = std::clamp(dot(a, b) / (na * nb), -1.0, 1.0);
+  return std::acos(c) * 180.0 / M_PI;
+}
+
+}  // namespace
+
+// ── NearestIndex ──────────────────────────────────────────────────────────────────────────
+namespace {
+using Pmap = CGAL::Pointer_property_map<K::Point_3>::type;
+using KTraits = CGAL::Search_traits_adapter<std::size_t, Pmap, CGAL::Search_traits_3<K>>;
+using KSearch = CGAL::Orthogonal_k_neighbor_search<KTraits>;
+}  // namespace
+
+struct NearestIndex::Impl {
+  std::vector<K::Point_3> pts;
+  std::unique_ptr<KSearch::Tree> tree;
+};
+
+NearestIndex::NearestIndex(const std::vector<Vec3>& points) : impl_(std::make_unique<Impl>()) {
+  impl_->pts.reserve(points.size());
+  for (auto& p : points) impl_->pts.emplace_back(p[0], p[1], p[2]);
+  Pmap pm = CGAL::make_property_map(impl_->pts);
+  impl_->tree = std::make_unique<KSearch::Tree>(boost::counting_iterator<std::size_t>(0),
+                                                boost::counting_iterator<std::size_t>(points.size()),
+                                                KSearch::Tree::Splitter(), KTraits(pm));
+  impl_->tree->build();  // built once here: const queries may then run concurrently
+}
+NearestIndex::~NearestIndex() = default;
+NearestIndex::NearestIndex(NearestIndex&&) noexcept = default;
+NearestIndex& NearestIndex::operator=(NearestIndex&&) noexcept = default;
+std::size_t NearestIndex::size() const { return impl_->pts.size(); }
+
+std::vector<std::pair<std::int32_t, double>> NearestIndex::nearest(const Vec3& q, int k) const {
+  std::vector<std::pair<std::int32_t, double>> out;
+  if (impl_->pts.empty() || k <= 0) return out;
+  Pmap pm = CGAL::make_property_map(impl_->pts);
+  KSearch search(*impl_->tree, K::Point_3(q[0], q[1], q[2]), static_cast<unsigned>(k), 0, true,
+                 KSearch::Distance(pm));
+  for (auto it = search.begin(); it != search.end(); ++it)
+    out.emplace_back(static_cast<std::int32_t>(it->first), std::sqrt(it->second));
+  std::sort(out.begin(), out.end(), [](auto& a, auto& b) { return a.second != b.second ? a.second < b.second : a.first < b.first; });
+  return out;
+}
+
+// ── the core ──────────────────────────────────────────────────────────────────────────────
+MedialObject medial_from_samples(std::vector<Sample> S, const CoreOptions& opt, CoreTimes* times) {
+  const std::int32_t n = static_cast<std::int32_t>(S.size());
+  double t0 = now();
+  // Duplicated points (e.g. a vertex sampled twice) are inserted once; rep[i] is the first.
+  std::vector<std::int32_t> order(n), rep(n);
+  std::iota(order.begin(), order.end(), 0);
+  std::sort(order.begin(), order.end(), [&](std::int32_t a, std::int32_t b) { return S[a].p != S[b].p ? S[a].p < S[b].p : a < b; });
+  std::vector<std::pair<K::Point_3, std::int32_t>> pts;
+  for (std::size_t k = 0; k < order.size(); ++k) {
+    std::int32_t i = order[k];
+    for (double x : S[i].p)
+      if (!std::isfinite(x)) throw StageError("medial: a boundary sample has a non-finite coordinate (sample " + std::to_string(i) + "); check the input shape");
+    if (k > 0 && S[order[k - 1]].p == S[i].p) {
+      rep[i] = rep[order[k - 1]];
+      continue;
+    }
+    rep[i] = i;
+    pts.emplace_back(K::Point_3(S[i].p[0], S[i].p[1], S[i].p[2]), i);
+  }
+  if (pts.size() < 8)
+    throw StageError("medial: only " + std::to_string(pts.size()) + " distinct boundary samples; at least 8 are needed (decrease `spacing`)");
+  DT dt;
+  dt.insert(pts.begin(), pts.end());
+  if (dt.dimension() < 3)
+    throw StageError("medial: the boundary samples are coplanar (the solid is flat or empty); a medial object needs a 3D solid");
+  // Cells: sorted vertex ids and circumcentres.
+  std::vector<CellRec> cells;
+  cells.reserve(dt.number_of_finite_cells());
+  for (auto ch : dt.all_cell_handles()) {
+    if (dt.is_infinite(ch)) {
+      ch->info() = -1;
+      continue;
+    }
+    CellRec rec;
+    for (int j = 0; j < 4; ++j) rec.ids[j] = ch->vertex(j)->info();
+    std::sort(rec.ids.begin(), rec.ids.end());
+    circumcentre(S, rec);
+    ch->info() = static_cast<std::int32_t>(cells.size());
+    cells.push_back(rec);
+  }
+  double t1 = now();
+
+  // Poles: per sample the farthest Voronoi vertex of its cell on each side.
+  std::vector<DT::Vertex_handle> vh(n);
+  for (auto v : dt.finite_vertex_handles()) vh[v->info()] = v;
+  std::vector<std::int32_t> pole_in(n, -1), pole_out(n, -1);  // cell indices
+  std::vector<DT::Cell_handle> inc;
+  auto better = [&](std::int32_t a, std::int32_t b) {  // a farther than b (ties by ids)
+    if (b < 0) return true;
+    return cells[a].r != cells[b].r ? cells[a].r > cells[b].r : cells[a].ids < cells[b].ids;
+  };
+  for (std::int32_t i = 0; i < n; ++i) {
+    if (rep[i] != i) continue;
+    const Vec3& nrm = S[i].n;
+    if (dot(nrm, nrm) < 0.25) continue;  // no normal (a singular point): no poles
+    inc.clear();
+    dt.incident_cells(vh[i], std::back_inserter(inc));
+    bool hull = false;
+    for (auto ch : inc) {
+      std::int32_t ci = ch->info();
+      if (ci < 0) {
+        hull = true;
+        continue;
+      }
+      if (!cells[ci].valid) continue;
+      double s = dot(sub(cells[ci].c, S[i].p), nrm);
+      if (s < 0 && better(ci, pole_in[i])) pole_in[i] = ci;
+      if (s > 0 && better(ci, pole_out[i])) pole_out[i] = ci;
+    }
+    if (hull) pole_out[i] = -1;  // unbounded cell: the body-side pole is at infinity
+  }
+  dt.clear();
+
+  // Candidate medial balls: (side, cell), filtered, sorted by (side, contacts).
+  struct Cand {
+    int side;
+    std::int32_t cell;
+  };
+  std::vector<Cand> cand;
+  for (std::int32_t i = 0; i < n; ++i) {
+    if (pole_in[i] >= 0) cand.push_back({0, pole_in[i]});
+    if (pole_out[i] >= 0) cand.push_back({1, pole_out[i]});
+  }
+  std::sort(cand.begin(), cand.end(), [&](const Cand& a, const Cand& b) {
+    return a.side != b.side ? a.side < b.side : cells[a.cell].ids < cells[b.cell].ids;
+  });
+  cand.erase(std::unique(cand.begin(), cand.end(), [](const Cand& a, const Cand& b) { return a.side == b.side && a.cell == b.cell; }),
+             cand.end());
+
+  MedialObject M;
+  std::vector<std::int32_t> kept_in(cells.size(), -1), kept_out(cells.size(), -1);
+  const double cos_tangent = std::cos(25.0 * M_PI / 180.0);
+  for (const Cand& cd : cand) {
+    const CellRec& cr = cells[cd.cell];
+    const double sigma = cd.side == 0 ? -1.0 : 1.0, R = cr.r;
+    bool ok = true;
+    for (std::int32_t q : cr.ids) {
+      const Sample& s = S[q];
+      if (s.kind == 0 && sigma * dot(sub(cr.c, s.p), s.n) < -0.05 * R) ok = false;
+    }
+    if (!ok) continue;
+    double amax = 0;
+    for (int a = 0; a < 4; ++a)
+      for (int b = a + 1; b < 4; ++b)
+        amax = std::max(amax, angle_deg(sub(S[cr.ids[a]].p, cr.c), sub(S[cr.ids[b]].p, cr.c)));
+    if (amax < opt.min_object_angle_deg) continue;
+    MedialPoint mp;
+    mp.c = cr.c;
+    mp.ball_radius = R;
+    mp.contacts = cr.ids;
+    mp.side = cd.side == 0 ? Side::fluid : Side::body;
+    mp.object_angle_deg = static_cast<std::uint8_t>(std::lround(amax));
+    double r = R;
+    for (std::int32_t q : cr.ids) {
+      const Sample& s = S[q];
+      if (s.kind != 0 || R <= 0) continue;
+      Vec3 w = sub(s.p, cr.c);
+      double along = -sigma * dot(w, s.n);  // distance to the tangent plane at the contact
+      if (along >= cos_tangent * R) r = std::min(r, along);
+    }
+    mp.radius = std::max(r, 0.5 * R);
+    if (cd.side == 0) {
+      // halo: two contacts on faces with nothing in common; the pair of largest angle
+      double best = -1;
+      Halo h;
+      for (int a = 0; a < 4; ++a)
+        for (int b = a + 1; b < 4; ++b) {
+          const Sample &sa = S[cr.ids[a]], &sb = S[cr.ids[b]];
+          if (sa.faces[0] < 0 || sb.faces[0] < 0 || share_face(sa, sb)) continue;
+          double ang = angle_deg(sub(sa.p, cr.c), sub(sb.p, cr.c));
+          if (ang > best) {
+            best = ang;
+            h.sample_a = cr.ids[a];
+            h.sample_b = cr.ids[b];
+            h.face_a = sa.faces[0];
+            h.face_b = sb.faces[0];
+          }
+        }
+      if (best >= 0) {
+        mp.halo = true;
+        if (h.face_a > h.face_b) {
+          std::swap(h.face_a, h.face_b);
+          std::swap(h.sample_a, h.sample_b);
+        }
+        h.medial = static_cast<std::int32_t>(M.points.size());
+        M.halos.push_back(h);
+      }
+    }
+    (cd.side == 0 ? kept_in : kept_out)[cd.cell] = static_cast<std::int32_t>(M.points.size());
+    M.points.push_back(mp);
+  }
+  std::sort(M.halos.begin(), M.halos.end(), [](const Halo& a, const Halo& b) {
+    return std::tie(a.face_a, a.face_b, a.medial) < std::tie(b.face_a, b.face_b, b.medial);
+  });
+  double t2 = now();
+
+  // Per-sample results.
+  M.info.assign(n, SampleInfo{});
+  std::vector<Vec3> centres;
+  centres.reserve(M.points.size());
+  for (auto& p : M.points) centres.push_back(p.c);
+  NearestIndex idx(centres);
+  for (std::int32_t i = 0; i < n; ++i) {
+    std::int32_t r = rep[i];
+    SampleInfo& si = M.info[i];
+    if (pole_in[r] >= 0 && kept_in[pole_in[r]] >= 0) {
+      si.pole_in = kept_in[pole_in[r]];
+      const MedialPoint& mp = M.points[si.pole_in];
+      si.r_in = mp.radius;
+      if (mp.halo) {
+        double best = -1;
+        for (std::int32_t q : mp.contacts) {
+          if (S[q].faces[0] < 0 || share_face(S[q], S[i])) continue;
+          double ang = angle_deg(sub(S[q].p, mp.c), sub(S[i].p, mp.c));
+          if (ang > best) {
+            best = ang;
+            si.halo_face = S[q].faces[0];
+          }
+        }
+      }
+    }
+    if (pole_out[r] >= 0 && kept_out[pole_out[r]] >= 0) {
+      si.pole_out = kept_out[pole_out[r]];
+      si.r_out = M.points[si.pole_out].radius;
+    }
+    if (idx.size()) si.lfs = idx.nearest(S[i].p, 1)[0].second;
+  }
+  M.samples = std::move(S);
+  double t3 = now();
+  if (times) {
+    times->delaunay += t1 - t0;
+    times->poles += t2 - t1;
+    times->lfs += t3 - t2;
+  }
+  return M;
+}
+
+}  // namespace meshflow::medial

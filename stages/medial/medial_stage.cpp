@@ -1,0 +1,203 @@
+// meshflow stage kind `medial` (paper §III.B): samples the healed fluid solid through the CAD
+// interface, computes the medial object (medial.hpp), refines the radii by projecting the
+// medial points on their contact faces, writes the "medial" artifact. No CGAL and no
+// OpenCASCADE header here: the CAD is reached through stages/cad/cad.hpp only.
+#include "engine/stage.hpp"
+#include "stages/cad/cad.hpp"
+#include "stages/medial/medial.hpp"
+
+#include <CGAL/version_macros.h>  // version string only (no CGAL code)
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <set>
+
+namespace meshflow::medial {
+namespace {
+
+Vec3 v3(const cad::Vec3& v) { return {v.x, v.y, v.z}; }
+cad::Vec3 cv(const Vec3& v) { return {v[0], v[1], v[2]}; }
+
+Vec3 unit(Vec3 a) {
+  double l = std::sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+  if (!(l > 1e-12)) return {0, 0, 0};
+  return {a[0] / l, a[1] / l, a[2] / l};
+}
+
+// The CAD shape seen as a BoundaryModel.
+class CadModel : public BoundaryModel {
+ public:
+  CadModel(const cad::Shape& s, const std::set<cad::Tag>& refine) : s_(s) {
+    refined_.resize(s.num_faces());
+    bool any = false;
+    for (int f = 0; f < s.num_faces(); ++f) any |= (refined_[f] = refine.count(s.face_tag(f)) > 0);
+    if (!any) std::fill(refined_.begin(), refined_.end(), true);
+    all_refined_fallback_ = !any;
+    vfaces_.resize(s.num_vertices());
+    vedges_.resize(s.num_vertices());
+    for (int e = 0; e < s.num_edges(); ++e) {
+      auto ends = s.edge_vertices(e);
+      auto fs = s.edge_faces(e);
+      for (int k = 0; k < 2; ++k) {
+        if (ends[k] < 0) continue;
+        vedges_[ends[k]].push_back({e, k});
+        vfaces_[ends[k]].insert(vfaces_[ends[k]].end(), fs.begin(), fs.end());
+      }
+    }
+    for (auto& v : vfaces_) {
+      std::sort(v.begin(), v.end());
+      v.erase(std::unique(v.begin(), v.end()), v.end());
+    }
+  }
+  bool all_refined_fallback() const { return all_refined_fallback_; }
+
+  int num_faces() const override { return s_.num_faces(); }
+  std::array<double, 4> face_bounds(int f) const override {
+    auto b = s_.face_uv_bounds(f);
+    return {b.u0, b.u1, b.v0, b.v1};
+  }
+  Vec3 face_point(int f, double u, double v) const override { return v3(s_.face_point(f, u, v)); }
+  Vec3 face_normal(int f, double u, double v) const override { return v3(s_.face_normal(f, u, v)); }
+  double face_curvature(int f, double u, double v) const override {
+    auto c = s_.face_curvature(f, u, v);
+    if (!c.defined) return 0;
+    double k = std::max(std::abs(c.k1), std::abs(c.k2));
+    return std::isfinite(k) ? k : 0;
+  }
+  bool face_contains(int f, double u, double v) const override { return s_.face_contains_uv(f, u, v, 1e-9); }
+  bool face_refined(int f) const override { return refined_[f]; }
+  int num_edges() const override { return s_.num_edges(); }
+  bool edge_degenerate(int e) const override { return s_.edge_degenerate(e); }
+  std::array<double, 2> edge_range(int e) const override {
+    auto r = s_.edge_range(e);
+    return {r.lo, r.hi};
+  }
+  Vec3 edge_point(int e, double t) const override { return v3(s_.edge_point(e, t)); }
+  Vec3 edge_normal(int e, double t) const override {
+    Vec3 n{0, 0, 0};
+    for (int f : s_.edge_faces(e)) {
+      auto uv = s_.edge_uv(e, f, t);
+      Vec3 nf = v3(s_.face_normal(f, uv.u, uv.v));
+      for (int k = 0; k < 3; ++k) n[k] += nf[k];
+    }
+    return unit(n);
+  }
+  std::vector<int> edge_faces(int e) const override { return s_.edge_faces(e); }
+  int num_vertices() const override { return s_.num_vertices(); }
+  Vec3 vertex_point(int v) const override { return v3(s_.vertex_point(v)); }
+  Vec3 vertex_normal(int v) const override {
+    Vec3 n{0, 0, 0};
+    for (auto [e, end] : vedges_[v]) {
+      if (s_.edge_degenerate(e)) continue;
+      auto r = s_.edge_range(e);
+      Vec3 ne = edge_normal(e, end == 0 ? r.lo : r.hi);
+      for (int k = 0; k < 3; ++k) n[k] += ne[k];
+    }
+    return unit(n);
+  }
+  std::vector<int> vertex_faces(int v) const override { return vfaces_[v]; }
+
+ private:
+  const cad::Shape& s_;
+  std::vector<char> refined_;
+  bool all_refined_fallback_ = false;
+  std::vector<std::vector<int>> vfaces_;
+  std::vector<std::vector<std::pair<int, int>>> vedges_;
+};
+
+// Radius = distance to the boundary: the minimum over the contact faces of the distance to the
+// face (projection inside the trimmed face), never above the empty-ball radius.
+long refine_radii(const cad::Shape& shape, MedialObject& M) {
+  long projected = 0;
+  for (auto& p : M.points) {
+    std::vector<std::pair<int, cad::Vec2>> faces;  // face, uv hint
+    for (auto q : p.contacts) {
+      const Sample& s = M.samples[q];
+      for (int f : s.faces) {
+        if (f < 0) continue;
+        bool seen = false;
+        for (auto& fh : faces) seen |= fh.first == f;
+        if (!seen && s.kind == 0) faces.push_back({f, {s.u, s.v}});
+      }
+    }
+    double r = p.ball_radius;
+    bool any = false;
+    for (auto& [f, hint] : faces) {
+      auto pr = shape.project_to_face(f, cv(p.c), hint);
+      if (!std::isfinite(pr.distance) || !shape.face_contains_uv(f, pr.u, pr.v, 1e-7)) continue;
+      r = std::min(r, pr.distance);
+      any = true;
+      ++projected;
+    }
+    if (any) p.radius = r;
+  }
+  for (std::size_t i = 0; i < M.info.size(); ++i) {
+    auto& si = M.info[i];
+    if (si.pole_in >= 0) si.r_in = M.points[si.pole_in].radius;
+    if (si.pole_out >= 0) si.r_out = M.points[si.pole_out].radius;
+  }
+  return projected;
+}
+
+double now() {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+
+void run(StageContext& ctx) {
+  const auto& P = ctx.params();
+  double t0 = now();
+  cad::Shape shape = cad::Shape::load(ctx.input("shape").path);
+  if (shape.num_solids() < 1)
+    throw StageError("medial: the input shape has no solid; the medial object needs the closed fluid solid: put a `heal` stage "
+                     "(or a geometry kind that builds the fluid solid) in `needs`");
+  if (auto fe = shape.free_edges(); !fe.empty())
+    throw StageError("medial: the input shape is not closed (" + std::to_string(fe.size()) + " free edges, e.g. edge " +
+                     std::to_string(fe[0]) + "); heal it first (stage kind `heal`)");
+  std::set<cad::Tag> refine;
+  for (auto& t : P.at("refine_tags")) refine.insert(cad::tag_from_name(t.get<std::string>()));
+  CadModel model(shape, refine);
+  if (model.all_refined_fallback())
+    ctx.log("medial: no face carries one of refine_tags; all faces are refined");
+  Params prm = Params::from_json(P);
+  RunReport rep;
+  MedialObject M = compute(model, prm, &rep, [&](double f, const std::string& w) { ctx.progress(f, w); });
+  double t1 = now();
+  long projected = 0;
+  if (P.at("refine_radius").get<bool>()) {
+    ctx.progress(0.95, "projecting medial points");
+    projected = refine_radii(shape, M);
+  }
+  double t2 = now();
+  nlohmann::json h = nlohmann::json::parse(M.header);
+  h["units"] = shape.units();
+  h["params"]["refine_radius"] = P.at("refine_radius");
+  h["params"]["refine_tags"] = P.at("refine_tags");
+  M.header = h.dump();
+  write(M, ctx.output("medial", "medial"));
+
+  auto& st = ctx.stats();
+  nlohmann::json sum = M.summary();
+  st["samples"] = M.samples.size();
+  st["samples_per_pass"] = rep.samples_per_pass;
+  st["medial_points"] = sum["medial_points"];
+  st["halos"] = M.halos.size();
+  st["halo_samples"] = sum["halo_samples"];
+  st["radius_fluid"] = sum["radius_fluid"];
+  st["radius_body"] = sum["radius_body"];
+  st["lfs_walls"] = sum["lfs_walls"];
+  st["projections"] = projected;
+  st["time"] = {{"sampling", rep.t_sampling}, {"delaunay", rep.t_delaunay}, {"poles", rep.t_poles},
+                {"lfs", rep.t_lfs},           {"projection", t2 - t1},      {"total", now() - t0}};
+  ctx.progress(1.0, "done");
+}
+
+StageRegistrar reg({.kind = "medial",
+                    .version = 1,
+                    .summary = "medial object of the fluid solid (CGAL Delaunay poles): medial points with radius, wall LFS, halos",
+                    .libraries = {"CGAL " CGAL_VERSION_STR},
+                    .run = run});
+
+}  // namespace
+}  // namespace meshflow::medial
