@@ -29,6 +29,7 @@
 #include <Message.hxx>
 #include <Message_PrinterOStream.hxx>
 #include <STEPControl_Writer.hxx>
+#include <StepData_StepModel.hxx>
 #include <Interface_Static.hxx>
 #include <ShapeAnalysis_Curve.hxx>
 #include <TopExp.hxx>
@@ -204,9 +205,16 @@ void Shape::export_brep(const std::filesystem::path& file) const {
 
 void Shape::export_step(const std::filesystem::path& file) const {
   occt::silence();
-  Interface_Static::SetCVal("write.step.unit", impl_->units == "m" ? "M" : impl_->units == "in" ? "INCH" : "MM");
+  const std::string& un = impl_->units;
+  double mm = un == "m" ? 1000 : un == "cm" ? 10 : un == "in" ? 25.4 : un == "ft" ? 304.8 : 1;
+  const char* u = un == "m" ? "M" : un == "cm" ? "CM" : un == "in" ? "INCH" : un == "ft" ? "FT" : "MM";
+  STEPControl_Writer w;  // (initialises the STEP statics: set them after)
+  Interface_Static::SetCVal("xstep.cascade.unit", u);
+  Interface_Static::SetCVal("write.step.unit", u);
   Interface_Static::SetCVal("write.step.schema", "AP214IS");
-  STEPControl_Writer w;
+  // the shape's coordinates are in its own unit, and so is the file: no conversion
+  w.Model()->SetLocalLengthUnit(mm);
+  w.Model()->SetWriteLengthUnit(mm);
   if (w.Transfer(impl_->shape, STEPControl_AsIs) != IFSelect_RetDone || w.Write(file.c_str()) != IFSelect_RetDone)
     throw StageError("writing the STEP file '" + file.string() + "' failed");
 }

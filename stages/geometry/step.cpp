@@ -15,6 +15,7 @@
 #include <IGESData_IGESModel.hxx>
 #include <Interface_Static.hxx>
 #include <STEPControl_Reader.hxx>
+#include <StepData_StepModel.hxx>
 #include <Standard_Failure.hxx>
 #include <Standard_Version.hxx>
 #include <TColStd_SequenceOfAsciiString.hxx>
@@ -37,9 +38,17 @@ using cad::Shape;
 struct UnitName {
   const char* occt;
   const char* label;
+  double mm;  // length of the unit in mm
 };
-constexpr UnitName kUnits[] = {{"MM", "mm"}, {"M", "m"}, {"CM", "cm"}, {"INCH", "in"}, {"FT", "ft"},
-                               {"KM", "km"}, {"UM", "um"}, {"MIL", "mil"}, {"MI", "mi"}, {"UIN", "uin"}};
+constexpr UnitName kUnits[] = {{"MM", "mm", 1},     {"M", "m", 1000},        {"CM", "cm", 10},
+                               {"INCH", "in", 25.4}, {"FT", "ft", 304.8},     {"KM", "km", 1e6},
+                               {"UM", "um", 1e-3},   {"MIL", "mil", 0.0254}, {"MI", "mi", 1609344},
+                               {"UIN", "uin", 2.54e-5}};
+double unit_mm(const std::string& label) {
+  for (auto& u : kUnits)
+    if (label == u.label) return u.mm;
+  return 1;
+}
 
 std::string label_of_step_unit(std::string n) {
   std::transform(n.begin(), n.end(), n.begin(), [](unsigned char c) { return std::toupper(c); });
@@ -72,6 +81,7 @@ TopoDS_Shape read_step(const fs::path& p, std::string& units, StageContext& ctx)
   units = label;
   // Keep the file's unit: make OCCT's working unit the file's unit (no conversion).
   Interface_Static::SetCVal("xstep.cascade.unit", occt_unit(label));
+  r.StepModel()->SetLocalLengthUnit(unit_mm(label));
   r.TransferRoots();
   if (r.NbShapes() == 0)
     throw StageError("STEP file '" + p.string() +
@@ -97,6 +107,14 @@ TopoDS_Shape read_brep(const fs::path& p) {
   TopoDS_Shape s;
   BRep_Builder b;
   std::ifstream in(p, std::ios::binary);
+  std::string first;
+  while (first.empty() && std::getline(in, first)) {
+  }
+  if (first.rfind("DBRep_DrawableShape", 0) != 0 && first.rfind("CASCADE Topology", 0) != 0)
+    throw StageError("cannot read '" + p.string() +
+                     "' as BREP: it is not an OpenCASCADE BREP file (its first line should be 'DBRep_DrawableShape' "
+                     "or 'CASCADE Topology V..'); check the file or its extension");
+  in.seekg(0);
   try {
     BRepTools::Read(s, in, b);
   } catch (const Standard_Failure& e) {

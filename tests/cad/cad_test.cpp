@@ -1,0 +1,243 @@
+// The CAD query interface (stages/cad/cad.hpp) on shapes made by the geometry kinds and on the
+// real files; the "shape" artifact type; the step kind's refusals.
+#include <doctest/doctest.h>
+
+#include "engine/artifact_type.hpp"
+#include "stages/cad/cad.hpp"
+#include "test_context.hpp"
+
+#include <cmath>
+#include <fstream>
+
+using meshflow::StageError;
+using meshflow::cad::Shape;
+using meshflow::cad::Tag;
+using meshflow::cad::Vec3;
+using meshflow::testing::TestContext;
+namespace fs = std::filesystem;
+
+namespace {
+Vec3 sub(Vec3 a, Vec3 b) { return {a.x - b.x, a.y - b.y, a.z - b.z}; }
+Vec3 add(Vec3 a, Vec3 b, double s = 1) { return {a.x + s * b.x, a.y + s * b.y, a.z + s * b.z}; }
+Vec3 mul(Vec3 a, double s) { return {a.x * s, a.y * s, a.z * s}; }
+double norm(Vec3 a) { return std::sqrt(a.x * a.x + a.y * a.y + a.z * a.z); }
+double dot(Vec3 a, Vec3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+
+struct Wing {
+  TestContext ctx{"naca_wing", {{"span", 1.5}}};
+  Shape s;
+  Wing() {
+    ctx.run();
+    s = Shape::load(ctx.artifact("shape").path);
+  }
+  int face(const std::string& type) const {
+    for (int f : s.faces_with_tag(Tag::wall))
+      if (s.face_surface_type(f) == type) return f;
+    return -1;
+  }
+};
+const Wing& wing() {
+  static Wing w;
+  return w;
+}
+}  // namespace
+
+TEST_CASE("surface derivatives agree with finite differences") {
+  const Shape& s = wing().s;
+  for (const char* type : {"extrusion", "revolution"}) {
+    int f = wing().face(type);
+    REQUIRE(f >= 0);
+    auto b = s.face_uv_bounds(f);
+    for (double a : {0.21, 0.47, 0.83}) {  // (u = 0 is the C1 leading-edge knot of the profile)
+      double u = b.u0 + a * (b.u1 - b.u0), v = b.v0 + (1 - a) * (b.v1 - b.v0), h = 1e-6;
+      auto d = s.face_eval(f, u, v);
+      auto du = mul(sub(s.face_point(f, u + h, v), s.face_point(f, u - h, v)), 0.5 / h);
+      auto dv = mul(sub(s.face_point(f, u, v + h), s.face_point(f, u, v - h)), 0.5 / h);
+      CHECK(norm(sub(du, d.du)) < 1e-6 * (1 + norm(d.du)));
+      CHECK(norm(sub(dv, d.dv)) < 1e-6 * (1 + norm(d.dv)));
+      auto e1 = s.face_eval(f, u + h, v), e0 = s.face_eval(f, u - h, v);
+      CHECK(norm(sub(mul(sub(e1.du, e0.du), 0.5 / h), d.duu)) < 1e-4 * (1 + norm(d.duu)));
+      CHECK(norm(sub(mul(sub(e1.dv, e0.dv), 0.5 / h), d.duv)) < 1e-4 * (1 + norm(d.duv)));
+      auto g1 = s.face_eval(f, u, v + h), g0 = s.face_eval(f, u, v - h);
+      CHECK(norm(sub(mul(sub(g1.dv, g0.dv), 0.5 / h), d.dvv)) < 1e-4 * (1 + norm(d.dvv)));
+      CHECK(norm(sub(d.p, s.face_point(f, u, v))) < 1e-14);
+    }
+  }
+}
+
+TEST_CASE("curve derivatives, length, vertices") {
+  const Shape& s = wing().s;
+  int checked = 0;
+  for (int e = 0; e < s.num_edges(); ++e) {
+    if (s.edge_degenerate(e)) continue;
+    auto r = s.edge_range(e);
+    double t = r.lo + 0.37 * (r.hi - r.lo), h = 1e-6 * (r.hi - r.lo);
+    auto d = s.edge_eval(e, t);
+    auto fd = mul(sub(s.edge_point(e, t + h), s.edge_point(e, t - h)), 0.5 / h);
+    CHECK(norm(sub(fd, d.d1)) < 1e-5 * (1 + norm(d.d1)));
+    // length = limit of the chord sum
+    double L = 0;
+    const int n = 2000;
+    for (int i = 0; i < n; ++i)
+      L += norm(sub(s.edge_point(e, r.lo + (r.hi - r.lo) * (i + 1) / n), s.edge_point(e, r.lo + (r.hi - r.lo) * i / n)));
+    CHECK(s.edge_length(e) == doctest::Approx(L).epsilon(1e-5));
+    auto v = s.edge_vertices(e);
+    CHECK(norm(sub(s.edge_point(e, r.lo), s.vertex_point(v[0]))) <= s.vertex_tolerance(v[0]) + 1e-9);
+    CHECK(norm(sub(s.edge_point(e, r.hi), s.vertex_point(v[1]))) <= s.vertex_tolerance(v[1]) + 1e-9);
+    ++checked;
+  }
+  CHECK(checked > 10);
+}
+
+TEST_CASE("projection to surfaces and curves recovers parameter and distance") {
+  Shape s = wing().s.clone();
+  int f = wing().face("extrusion");
+  auto b = s.face_uv_bounds(f);
+  for (double a : {0.05, 0.3, 0.5, 0.71, 0.95}) {
+    double u = b.u0 + a * (b.u1 - b.u0), v = b.v0 + 0.4 * (b.v1 - b.v0);
+    Vec3 n = s.face_normal(f, u, v);
+    CHECK(norm(n) == doctest::Approx(1.0));
+    Vec3 p = add(s.face_point(f, u, v), n, 1e-3);
+    auto pr = s.project_to_face(f, p);
+    CHECK(pr.distance == doctest::Approx(1e-3).epsilon(1e-6));
+    CHECK(pr.u == doctest::Approx(u).epsilon(1e-7));
+    CHECK(pr.v == doctest::Approx(v).epsilon(1e-7));
+    auto ph = s.project_to_face(f, p, meshflow::cad::Vec2{u + 1e-3, v - 1e-3});
+    CHECK(ph.distance == doctest::Approx(1e-3).epsilon(1e-6));
+    CHECK(std::abs(ph.u - u) < 1e-7);
+  }
+  for (int e : s.face_edges(f)) {
+    if (s.edge_degenerate(e)) continue;
+    auto r = s.edge_range(e);
+    double t = r.lo + 0.61 * (r.hi - r.lo);
+    Vec3 p = s.edge_point(e, t);
+    auto pr = s.project_to_edge(e, p);
+    CHECK(pr.distance < 1e-9);
+    CHECK(pr.t == doctest::Approx(t).epsilon(1e-7));
+    auto ph = s.project_to_edge(e, add(p, {1e-9, 0, 0}), t + 0.01 * (r.hi - r.lo));
+    CHECK(ph.t == doctest::Approx(t).epsilon(1e-6));
+  }
+}
+
+TEST_CASE("normals point out of the fluid; curvature at the leading edge is 1/r_LE") {
+  const Shape& s = wing().s;
+  int f = wing().face("extrusion");
+  // the leading edge of the 10 deg wing at z = 0.5 is the origin line: project it
+  auto pr = s.project_to_face(f, {0, 0, 0.5});
+  CHECK(pr.distance < 1e-12);
+  Vec3 n = s.face_normal(f, pr.u, pr.v);
+  CHECK(n.x > 0.98);  // into the wing (out of the fluid), i.e. downstream at the nose
+  auto c = s.face_curvature(f, pr.u, pr.v);
+  REQUIRE(c.defined);
+  double r_le = std::pow(5 * 0.12 * 0.2969, 2) / 2;  // exact for the 4-digit polynomial
+  CHECK(std::max(std::abs(c.k1), std::abs(c.k2)) == doctest::Approx(1 / r_le).epsilon(1e-6));
+  CHECK(std::min(std::abs(c.k1), std::abs(c.k2)) < 1e-9);  // straight along the span
+  CHECK(c.gauss == doctest::Approx(0).epsilon(1e-9));
+}
+
+TEST_CASE("adjacency: wires are closed loops in order, p-curves match the 3D curves") {
+  const Shape& s = wing().s;
+  for (int f = 0; f < s.num_faces(); ++f) {
+    auto wires = s.face_wires(f);
+    REQUIRE(!wires.empty());
+    for (auto& w : wires) {
+      for (size_t i = 0; i < w.size(); ++i) {
+        auto a = w[i], b = w[(i + 1) % w.size()];
+        auto va = s.edge_vertices(a.edge), vb = s.edge_vertices(b.edge);
+        CHECK((a.reversed ? va[0] : va[1]) == (b.reversed ? vb[1] : vb[0]));
+      }
+      for (auto use : w) {
+        int e = use.edge;
+        auto ef = s.edge_faces(e);
+        CHECK(std::find(ef.begin(), ef.end(), f) != ef.end());
+        if (s.edge_degenerate(e)) continue;
+        auto r = s.edge_range(e);
+        for (double a : {0.0, 0.3, 1.0}) {
+          double t = r.lo + a * (r.hi - r.lo);
+          auto uv = s.edge_uv(e, f, t, use.reversed);
+          CHECK(norm(sub(s.face_point(f, uv.u, uv.v), s.edge_point(e, t))) < 1e-6);
+          CHECK(s.face_contains_uv(f, uv.u, uv.v, 1e-6));
+        }
+      }
+    }
+    for (int g : s.face_neighbours(f)) {
+      auto n = s.face_neighbours(g);
+      CHECK(std::find(n.begin(), n.end(), f) != n.end());
+    }
+  }
+  // the closed fluid solid: every non-degenerate edge bounds two faces or is a seam
+  CHECK(s.free_edges().empty());
+  CHECK(s.multiple_edges().empty());
+  auto bb = s.box();
+  CHECK(bb.lo.z == doctest::Approx(0).epsilon(1e-6));
+  CHECK(bb.hi.x == doctest::Approx(11).epsilon(1e-6));
+}
+
+TEST_CASE("shape artifact: type registered, summary, STEP export keeps units, corrupt files refused") {
+  const auto* t = meshflow::find_artifact_type("shape");
+  REQUIRE(t != nullptr);
+  REQUIRE(t->summarize);
+  auto path = wing().ctx.artifact("shape").path;
+  auto j = t->summarize(path);
+  CHECK(j["faces"] == wing().s.num_faces());
+  CHECK(j["solids"] == 1);
+  CHECK(j["face_tags"]["farfield"] == 5);
+  CHECK(j["units"] == "m");
+  auto dir = meshflow::testing::scratch_dir("export");
+  t->formats.at("step").write(path, dir / "w.step");
+  t->formats.at("brep").write(path, dir / "w.brep");
+  TestContext back("step", {{"file", (dir / "w.step").string()}});
+  back.run();
+  CHECK(back.stats_["units"] == "m");
+  CHECK(back.stats_["faces"] == wing().s.num_faces());
+  Shape b = Shape::load(back.artifact("shape").path);
+  CHECK(b.volume() == doctest::Approx(wing().s.volume()).epsilon(1e-6));
+  TestContext brep("step", {{"file", (dir / "w.brep").string()}, {"scale", 1000.0}, {"units", "mm"}});
+  brep.run();
+  CHECK(Shape::load(brep.artifact("shape").path).box().hi.x == doctest::Approx(11000).epsilon(1e-6));
+
+  std::ofstream(dir / "bad.mfshape") << "meshflow-shape 1\n{\"units\":\"m\",\"face_tags\":[]}\nnot a brep\n";
+  CHECK_THROWS_AS(Shape::load(dir / "bad.mfshape"), StageError);
+  std::ofstream(dir / "other.mfshape") << "hello\n";
+  CHECK_THROWS_WITH_AS(Shape::load(dir / "other.mfshape"), doctest::Contains("not a meshflow shape artifact"), StageError);
+  CHECK_THROWS_WITH_AS(Shape::load(dir / "missing.mfshape"), doctest::Contains("cannot open"), StageError);
+  {  // tags that do not match the faces
+    std::ifstream in(path);
+    std::string all((std::istreambuf_iterator<char>(in)), {});
+    auto pos = all.find("\"farfield\",");
+    all.erase(pos, 11);
+    std::ofstream(dir / "tags.mfshape") << all;
+    CHECK_THROWS_WITH_AS(Shape::load(dir / "tags.mfshape"), doctest::Contains("face tags for"), StageError);
+  }
+  fs::remove_all(dir);
+}
+
+TEST_CASE("step kind refuses bad files with the file name and what to do") {
+  auto dir = meshflow::testing::scratch_dir("bad");
+  TestContext missing("step", {{"file", (dir / "nope.step").string()}});
+  CHECK_THROWS_WITH_AS(missing.run(), doctest::Contains("does not exist"), StageError);
+  std::ofstream(dir / "garbage.step") << "this is not ISO-10303-21\n";
+  TestContext garbage("step", {{"file", (dir / "garbage.step").string()}});
+  CHECK_THROWS_WITH_AS(garbage.run(), doctest::Contains("garbage.step"), StageError);
+  std::ofstream(dir / "garbage.brep") << "nonsense\n";
+  TestContext gb("step", {{"file", (dir / "garbage.brep").string()}});
+  CHECK_THROWS_WITH_AS(gb.run(), doctest::Contains("not an OpenCASCADE BREP"), StageError);
+  std::ofstream(dir / "x.obj") << "v 0 0 0\n";
+  TestContext ext("step", {{"file", (dir / "x.obj").string()}});
+  CHECK_THROWS_WITH_AS(ext.run(), doctest::Contains(".step/.stp"), StageError);
+  fs::remove_all(dir);
+}
+
+TEST_CASE("relative file paths resolve against the workflow folder; DLR-F6 loads with its 130 stored faces") {
+  fs::path data = MESHFLOW_DATA_DIR;
+  if (!fs::exists(data / "dlr_f6/dlr_f6.brep")) return;
+  TestContext c("step", {{"file", "dlr_f6/dlr_f6.brep"}}, {}, data);
+  c.run();
+  Shape s = Shape::load(c.artifact("shape").path);
+  CHECK(s.num_solids() == 1);
+  CHECK(s.num_faces() == 130);
+  CHECK(s.valid());
+  CHECK(s.units() == "mm");
+  // the half model's symmetry plane is y = 0
+  CHECK(std::abs(s.box().hi.y) < 1e-6);
+}
