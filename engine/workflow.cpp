@@ -148,15 +148,54 @@ std::vector<std::string> Workflow::descendants(const std::string& stage) const {
 }
 
 Workflow load_workflow(const fs::path& file, const std::vector<std::string>& overrides) {
-  Source src;
-  src.file = file.string();
-  std::ifstream in(file);
+  std::ifstream in(file, std::ios::binary);
   if (!in)
     throw WorkflowError(file.string() + ": cannot read the workflow file (" +
                         (fs::exists(file) ? "permission denied" : "no such file") + "). Check the path.");
+  std::ostringstream text;
+  text << in.rdbuf();
+  return load_workflow_text(text.str(), file, overrides);
+}
+
+namespace {
+// Byte offset of the first invalid UTF-8 sequence, or npos. (JSON, hence keys and reports,
+// hold only UTF-8; found by fuzzing.)
+size_t invalid_utf8(const std::string& s) {
+  size_t i = 0, n = s.size();
+  while (i < n) {
+    unsigned char c = static_cast<unsigned char>(s[i]);
+    size_t len = c < 0x80 ? 1 : (c >> 5) == 6 ? 2 : (c >> 4) == 14 ? 3 : (c >> 3) == 30 ? 4 : 0;
+    if (len == 0 || i + len > n) return i;
+    if (len == 2 && c < 0xC2) return i;  // overlong
+    for (size_t k = 1; k < len; ++k)
+      if ((static_cast<unsigned char>(s[i + k]) >> 6) != 2) return i;
+    if (len == 3) {
+      unsigned char c1 = static_cast<unsigned char>(s[i + 1]);
+      if ((c == 0xE0 && c1 < 0xA0) || (c == 0xED && c1 >= 0xA0)) return i;  // overlong, surrogates
+    }
+    if (len == 4) {
+      unsigned char c1 = static_cast<unsigned char>(s[i + 1]);
+      if ((c == 0xF0 && c1 < 0x90) || c > 0xF4 || (c == 0xF4 && c1 >= 0x90)) return i;
+    }
+    i += len;
+  }
+  return std::string::npos;
+}
+}  // namespace
+
+Workflow load_workflow_text(const std::string& text, const fs::path& file, const std::vector<std::string>& overrides) {
+  Source src;
+  src.file = file.string();
+  if (size_t bad = invalid_utf8(text); bad != std::string::npos) {
+    int line = 1 + int(std::count(text.begin(), text.begin() + long(bad), '\n'));
+    throw WorkflowError(file.string() + ":" + std::to_string(line) + ": the file is not valid UTF-8 (byte offset " +
+                        std::to_string(bad) + "). Save it as UTF-8.");
+  }
+  for (auto& o : overrides)
+    if (invalid_utf8(o) != std::string::npos) throw WorkflowError("--set " + std::string(o.size() > 40 ? o.substr(0, 40) : o) + "...: not valid UTF-8.");
   YAML::Node root;
   try {
-    root = YAML::Load(in);
+    root = YAML::Load(text);
   } catch (const YAML::Exception& e) {
     throw WorkflowError(file.string() + ":" + std::to_string(e.mark.line + 1) + ":" + std::to_string(e.mark.column + 1) +
                         ": YAML syntax error: " + e.msg + ". Fix the YAML (indentation, quotes, colons) at that place.");

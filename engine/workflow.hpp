@@ -67,5 +67,8 @@ struct Workflow {
 // Loads and validates the workflow; `overrides` are "STAGE.PARAM=VALUE" (--set), the value
 // parsed as YAML and typed by the schema. Throws WorkflowError.
 Workflow load_workflow(const std::filesystem::path& file, const std::vector<std::string>& overrides = {});
+// The same from the file's text (`file` names it in messages and anchors relative paths).
+Workflow load_workflow_text(const std::string& text, const std::filesystem::path& file,
+                            const std::vector<std::string>& overrides = {});
 
 }  // namespace meshflow

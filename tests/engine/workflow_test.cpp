@@ -138,6 +138,10 @@ TEST_CASE("bad input: every kind gives file, line and what to do") {
     CHECK(e.find("(--set)") != std::string::npos);
     CHECK(e.find("below the minimum") != std::string::npos);
   }
+  SUBCASE("not UTF-8 (found by fuzzing)") {
+    auto e = load_error("meshflow: 1\nname: x\xef\nstages:\n  a: {kind: t_source}\n");
+    CHECK(e.find("w.yaml:2: the file is not valid UTF-8") != std::string::npos);
+  }
   SUBCASE("an output from an unknown stage") {
     auto e = load_error("meshflow: 1\nname: x\nstages:\n  a: {kind: t_source}\noutputs:\n  o: {from: b}\n");
     CHECK(e.find("w.yaml:6:") != std::string::npos);
