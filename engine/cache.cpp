@@ -97,8 +97,17 @@ void Cache::write_action(const std::string& key, const json& entry) {
 
 void Cache::record_last(const std::string& workflow, const std::string& stage, const json& last) {
   fs::path dir = root_ / "last" / workflow;
+  fs::path file = dir / (stage + ".json");
+  std::string text = last.dump(1);
+  std::error_code ec;
+  if (fs::exists(file, ec)) {
+    try {
+      if (read_file(file) == text) return;  // unchanged: a no-change re-run writes nothing
+    } catch (...) {
+    }
+  }
   fs::create_directories(dir);
-  atomic_write(dir / (stage + ".json"), last.dump(1), tmp_dir());
+  atomic_write(file, text, tmp_dir(), /*durable=*/false);  // advisory: only `explain` reads it
 }
 
 std::optional<json> Cache::last(const std::string& workflow, const std::string& stage) const {

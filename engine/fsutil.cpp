@@ -53,7 +53,7 @@ bool parse_owner(const std::string& name, std::string* host, long* pid) {
   return true;
 }
 
-void atomic_write(const fs::path& target, std::string_view bytes, const fs::path& tmp_dir) {
+void atomic_write(const fs::path& target, std::string_view bytes, const fs::path& tmp_dir, bool durable) {
   fs::path tmp = tmp_dir.empty() ? target : tmp_dir / target.filename();
   tmp += ".tmp." + unique_suffix();
   int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
@@ -72,7 +72,7 @@ void atomic_write(const fs::path& target, std::string_view bytes, const fs::path
     p += w;
     left -= size_t(w);
   }
-  if (::fsync(fd) != 0 || ::close(fd) != 0) {
+  if ((durable && ::fsync(fd) != 0) || ::close(fd) != 0) {
     int e = errno;
     ::unlink(tmp.c_str());
     throw std::runtime_error("cannot write '" + tmp.string() + "': " + std::strerror(e));

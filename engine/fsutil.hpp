@@ -11,8 +11,10 @@ namespace meshflow {
 // rename over the target. Readers see the old file or the whole new one, never a part.
 // The temp file lives in `tmp_dir` (same filesystem as the target) when given, so that a
 // process killed mid-write leaves its debris only where the cache's cleanup looks.
+// `durable` adds an fsync before the rename (survives power loss, costs milliseconds); a
+// killed process never leaves a partial file either way.
 void atomic_write(const std::filesystem::path& target, std::string_view bytes,
-                  const std::filesystem::path& tmp_dir = {});
+                  const std::filesystem::path& tmp_dir = {}, bool durable = true);
 std::string read_file(const std::filesystem::path& file);  // throws naming the file
 std::string hostname();
 bool process_alive(long pid);  // on this host
