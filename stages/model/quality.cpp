@@ -1,0 +1,577 @@
+#include "stages/model/quality.hpp"
+
+#include "stages/model/basis.hpp"
+#include "stages/model/topology.hpp"
+
+#include <Eigen/Dense>
+#include <nlohmann/json.hpp>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
+#include <algorithm>
+#include <cstdio>
+#include <cstdlib>
+#include <cmath>
+#include <deque>
+#include <limits>
+#include <map>
+#include <memory>
+#include <mutex>
+
+namespace meshflow::model {
+
+namespace {
+
+double binom(int n, int k) {
+  double r = 1;
+  for (int i = 1; i <= k; ++i) r = r * (n - k + i) / i;
+  return r;
+}
+double bern1(int d, int a, double t) { return binom(d, a) * std::pow(t, a) * std::pow(1 - t, d - a); }
+
+// Bernstein basis of the det J space of one shape; `lat` = multi-indices (also the lattice
+// points of the interpolation: point = index / degree).
+struct JacobianSpace {
+  Shape shape;
+  int order, dim;
+  int d1 = 0, d2 = 0;               // degrees (d2: tensor/prism axis)
+  std::vector<Lattice> lat;
+  std::vector<Vec3> pts;             // canonical sample points (reference coordinates)
+  Eigen::MatrixXd G;                 // (3*npts) x nnodes: dN_i/dxi_c at point p in row 3p+c
+  Eigen::MatrixXd T;                 // lagrange values -> bezier coefficients (simplices)
+  Eigen::MatrixXd Ta, Tb;            // factors: 1D (quad/hex: every axis) or triangle x line (prism)
+  bool bezier = false;               // false: sampling only (pyramids, ill-conditioned degrees)
+  double amplification = 0;
+
+  // Bernstein coefficients of the det J values v at pts (lattice order: last index fastest).
+  void to_bezier(const double* v, double* c) const {
+    const int np = (int)pts.size();
+    if (T.size()) {
+      Eigen::Map<Eigen::VectorXd>(c, np) = T * Eigen::Map<const Eigen::VectorXd>(v, np);
+      return;
+    }
+    if (shape == Shape::Prism) {  // V is (ntri x nline) row-major: C = Ta V Tb^T
+      const int nl = d2 + 1, nt = np / nl;
+      Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> V(v, nt, nl);
+      Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> C(c, nt, nl);
+      C = Ta * V * Tb.transpose();
+      return;
+    }
+    const int n1 = d1 + 1;
+    std::vector<double> a(v, v + np), b(np);
+    const int naxes = dim;
+    for (int ax = 0; ax < naxes; ++ax) {  // apply Ta along axis ax (stride = n1^(naxes-1-ax))
+      int stride = 1;
+      for (int k = ax + 1; k < naxes; ++k) stride *= n1;
+      for (int base = 0; base < np; ++base) {
+        if ((base / stride) % n1 != 0) continue;
+        for (int q = 0; q < n1; ++q) {
+          double sum = 0;
+          for (int r = 0; r < n1; ++r) sum += Ta(q, r) * a[base + r * stride];
+          b[base + q * stride] = sum;
+        }
+      }
+      std::swap(a, b);
+    }
+    std::copy(a.begin(), a.end(), c);
+  }
+  std::vector<std::vector<Vec3>> children;  // canonical subdivision (vertex lists)
+  double ref_volume = 1;
+
+  Vec3 point(const Lattice& a) const {
+    switch (shape) {
+      case Shape::Tri: return d1 ? Vec3{a[0] / double(d1), a[1] / double(d1), 0} : Vec3{1 / 3., 1 / 3., 0};
+      case Shape::Tet: return d1 ? Vec3{a[0] / double(d1), a[1] / double(d1), a[2] / double(d1)} : Vec3{.25, .25, .25};
+      case Shape::Quad: return {-1 + 2. * a[0] / d1, -1 + 2. * a[1] / d1, 0};
+      case Shape::Hex: return {-1 + 2. * a[0] / d1, -1 + 2. * a[1] / d1, -1 + 2. * a[2] / d1};
+      case Shape::Prism:
+        return {d1 ? a[0] / double(d1) : 1 / 3., d1 ? a[1] / double(d1) : 1 / 3., -1 + 2. * a[2] / d2};
+      default: return {0, 0, 0};
+    }
+  }
+  double bernstein(const Lattice& a, const Vec3& x) const {
+    switch (shape) {
+      case Shape::Tri:
+      case Shape::Tet: {
+        const int d = d1;
+        double l0 = 1 - x[0] - x[1] - (shape == Shape::Tet ? x[2] : 0);
+        int a0 = d - a[0] - a[1] - a[2];
+        double c = std::tgamma(d + 1) / (std::tgamma(a0 + 1) * std::tgamma(a[0] + 1) * std::tgamma(a[1] + 1) *
+                                         std::tgamma(a[2] + 1));
+        return c * std::pow(l0, a0) * std::pow(x[0], a[0]) * std::pow(x[1], a[1]) *
+               (shape == Shape::Tet ? std::pow(x[2], a[2]) : 1.0);
+      }
+      case Shape::Quad: return bern1(d1, a[0], (x[0] + 1) / 2) * bern1(d1, a[1], (x[1] + 1) / 2);
+      case Shape::Hex:
+        return bern1(d1, a[0], (x[0] + 1) / 2) * bern1(d1, a[1], (x[1] + 1) / 2) * bern1(d1, a[2], (x[2] + 1) / 2);
+      case Shape::Prism: {
+        double l0 = 1 - x[0] - x[1];
+        int a0 = d1 - a[0] - a[1];
+        double c = std::tgamma(d1 + 1) / (std::tgamma(a0 + 1) * std::tgamma(a[0] + 1) * std::tgamma(a[1] + 1));
+        return c * std::pow(l0, a0) * std::pow(x[0], a[0]) * std::pow(x[1], a[1]) * bern1(d2, a[2], (x[2] + 1) / 2);
+      }
+      default: return 0;
+    }
+  }
+
+  JacobianSpace(Shape s, int p) : shape(s), order(p), dim(dimension(s)) {
+    switch (s) {
+      case Shape::Tri:
+        d1 = 2 * (p - 1);
+        for (int i = 0; i <= d1; ++i)
+          for (int j = 0; i + j <= d1; ++j) lat.push_back({i, j, 0});
+        ref_volume = 0.5;
+        break;
+      case Shape::Tet:
+        d1 = 3 * (p - 1);
+        for (int i = 0; i <= d1; ++i)
+          for (int j = 0; i + j <= d1; ++j)
+            for (int k = 0; i + j + k <= d1; ++k) lat.push_back({i, j, k});
+        ref_volume = 1 / 6.;
+        break;
+      case Shape::Quad:
+        d1 = 2 * p - 1;
+        for (int i = 0; i <= d1; ++i)
+          for (int j = 0; j <= d1; ++j) lat.push_back({i, j, 0});
+        ref_volume = 4;
+        break;
+      case Shape::Hex:
+        d1 = 3 * p - 1;
+        for (int i = 0; i <= d1; ++i)
+          for (int j = 0; j <= d1; ++j)
+            for (int k = 0; k <= d1; ++k) lat.push_back({i, j, k});
+        ref_volume = 8;
+        break;
+      case Shape::Prism:
+        d1 = 3 * p - 2;
+        d2 = 3 * p - 1;
+        for (int i = 0; i <= d1; ++i)
+          for (int j = 0; i + j <= d1; ++j)
+            for (int k = 0; k <= d2; ++k) lat.push_back({i, j, k});
+        ref_volume = 1;
+        break;
+      case Shape::Pyramid: {  // sampling: pyramid lattice of order 3P+2 without the apex
+        const int q = 3 * p + 2;
+        for (int k = 1; k <= q; ++k)  // layer k from the apex has (k+1)^2 points
+          for (int i = 0; i <= k; ++i)
+            for (int j = 0; j <= k; ++j) pts.push_back(lattice_to_reference(Shape::Pyramid, q, {i, j, k}));
+        ref_volume = 4. / 3.;
+        break;
+      }
+      default: break;
+    }
+    for (auto& a : lat) pts.push_back(point(a));
+    const LagrangeBasis& b = LagrangeBasis::get(s, p);
+    const int n = b.size(), np = (int)pts.size();
+    G.resize(3 * np, n);
+    std::vector<double> dN(3 * n);
+    for (int q = 0; q < np; ++q) {
+      b.grad(pts[q], dN.data());
+      for (int c = 0; c < 3; ++c)
+        for (int i = 0; i < n; ++i) G(3 * q + c, i) = dN[3 * i + c];
+    }
+    if (!lat.empty()) {
+      // Lagrange -> Bernstein: dense on simplices, factorised (Kronecker) on tensor shapes.
+      auto inv1 = [](int d) {
+        Eigen::MatrixXd M(d + 1, d + 1);
+        for (int q = 0; q <= d; ++q)
+          for (int a = 0; a <= d; ++a) M(q, a) = bern1(d, a, double(q) / d);
+        return Eigen::MatrixXd(M.fullPivLu().inverse());
+      };
+      if (s == Shape::Tri || s == Shape::Tet) {
+        Eigen::MatrixXd M(np, np);
+        for (int q = 0; q < np; ++q)
+          for (int a = 0; a < np; ++a) M(q, a) = bernstein(lat[a], pts[q]);
+        T = M.fullPivLu().inverse();
+      } else if (s == Shape::Prism) {
+        std::vector<Lattice> tl;
+        for (int i = 0; i <= d1; ++i)
+          for (int j = 0; i + j <= d1; ++j) tl.push_back({i, j, 0});
+        const int nt = (int)tl.size();
+        Eigen::MatrixXd M(nt, nt);
+        for (int q = 0; q < nt; ++q)
+          for (int a = 0; a < nt; ++a) {
+            Vec3 x = {d1 ? tl[q][0] / double(d1) : 1 / 3., d1 ? tl[q][1] / double(d1) : 1 / 3., 0};
+            double l0 = 1 - x[0] - x[1];
+            int a0 = d1 - tl[a][0] - tl[a][1];
+            double c = std::tgamma(d1 + 1) / (std::tgamma(a0 + 1) * std::tgamma(tl[a][0] + 1) * std::tgamma(tl[a][1] + 1));
+            M(q, a) = c * std::pow(l0, a0) * std::pow(x[0], tl[a][0]) * std::pow(x[1], tl[a][1]);
+          }
+        Ta = M.fullPivLu().inverse();
+        Tb = inv1(d2);
+      } else {
+        Ta = inv1(d1);
+      }
+      // Lagrange -> Bernstein on equispaced points is ill-conditioned at high degree (the
+      // amplification is the infinity norm of the transform, a power of the 1D one on
+      // tensor shapes); where rounding could flip a coefficient's sign we fall back to
+      // sampling at the lattice points (reported as "sampling"). At P <= 4 every shape is
+      // certified by Bezier bounds.
+      auto rowsum = [](const Eigen::MatrixXd& A) { return A.cwiseAbs().rowwise().sum().maxCoeff(); };
+      amplification = T.size() ? rowsum(T)
+                      : s == Shape::Prism ? rowsum(Ta) * rowsum(Tb)
+                                          : std::pow(rowsum(Ta), dim);
+      bezier = amplification < 1e6;
+    }
+    // canonical children as vertex lists in reference coordinates
+    auto mid = [](Vec3 a, Vec3 b) { return Vec3{(a[0] + b[0]) / 2, (a[1] + b[1]) / 2, (a[2] + b[2]) / 2}; };
+    if (s == Shape::Tri || s == Shape::Prism) {
+      Vec3 v0{0, 0, 0}, v1{1, 0, 0}, v2{0, 1, 0};
+      Vec3 m01 = mid(v0, v1), m12 = mid(v1, v2), m20 = mid(v2, v0);
+      std::vector<std::array<Vec3, 3>> tris = {{v0, m01, m20}, {m01, v1, m12}, {m20, m12, v2}, {m12, m20, m01}};
+      if (s == Shape::Tri)
+        for (auto& t : tris) children.push_back({t[0], t[1], t[2]});
+      else
+        for (auto& t : tris)
+          for (double z0 : {-1.0, 0.0}) {
+            std::vector<Vec3> c;
+            for (double z : {z0, z0 + 1})
+              for (auto v : t) c.push_back({v[0], v[1], z});
+            children.push_back(c);
+          }
+    } else if (s == Shape::Tet) {
+      Vec3 v[4] = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+      Vec3 m01 = mid(v[0], v[1]), m02 = mid(v[0], v[2]), m03 = mid(v[0], v[3]), m12 = mid(v[1], v[2]),
+           m13 = mid(v[1], v[3]), m23 = mid(v[2], v[3]);
+      children = {{v[0], m01, m02, m03}, {m01, v[1], m12, m13}, {m02, m12, v[2], m23}, {m03, m13, m23, v[3]},
+                  {m01, m02, m03, m13},  {m01, m02, m12, m13},  {m02, m03, m13, m23},  {m02, m12, m13, m23}};
+    } else if (s == Shape::Quad || s == Shape::Hex) {
+      const auto& rv = reference_nodes(s, 1);
+      int nz = s == Shape::Hex ? 2 : 1;
+      for (int cz = 0; cz < nz; ++cz)
+        for (int cy = 0; cy < 2; ++cy)
+          for (int cx = 0; cx < 2; ++cx) {
+            std::vector<Vec3> c;
+            for (auto r : rv) {
+              Vec3 q{cx - 1 + (r[0] + 1) / 2, cy - 1 + (r[1] + 1) / 2, s == Shape::Hex ? cz - 1 + (r[2] + 1) / 2 : 0};
+              c.push_back(q);
+            }
+            children.push_back(c);
+          }
+    }
+  }
+};
+
+const JacobianSpace& space(Shape s, int p) {
+  static std::mutex mu;
+  static std::unique_ptr<JacobianSpace> cache[kNumShapes][kMaxOrder + 1];
+  std::lock_guard<std::mutex> lock(mu);
+  auto& slot = cache[static_cast<int>(s)][p];
+  if (!slot) slot = std::make_unique<JacobianSpace>(s, p);
+  return *slot;
+}
+
+double det_at(int dim, const double J[9], const double* normal) { return jacobian_determinant(dim, J, normal); }
+
+void straight_normal(Shape s, const double* X, double n[3]) {
+  auto P = [&](int i, int r) { return X[3 * i + r]; };
+  double a[3], b[3];
+  if (s == Shape::Tri)
+    for (int r = 0; r < 3; ++r) a[r] = P(1, r) - P(0, r), b[r] = P(2, r) - P(0, r);
+  else
+    for (int r = 0; r < 3; ++r) a[r] = P(2, r) - P(0, r), b[r] = P(3, r) - P(1, r);
+  n[0] = a[1] * b[2] - a[2] * b[1];
+  n[1] = a[2] * b[0] - a[0] * b[2];
+  n[2] = a[0] * b[1] - a[1] * b[0];
+  double l = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+  if (l > 0)
+    for (int r = 0; r < 3; ++r) n[r] /= l;
+}
+
+double aspect(Shape s, const double* X) {
+  double lo = std::numeric_limits<double>::infinity(), hi = 0;
+  for (auto [a, b] : edge_vertices(s)) {
+    double d2 = 0;
+    for (int r = 0; r < 3; ++r) d2 += (X[3 * a + r] - X[3 * b + r]) * (X[3 * a + r] - X[3 * b + r]);
+    lo = std::min(lo, d2);
+    hi = std::max(hi, d2);
+  }
+  if (hi == 0) return 1;
+  if (lo == 0) return std::numeric_limits<double>::max();
+  return std::sqrt(hi / lo);
+}
+
+// Slow path: subdivide the reference domain until the Bezier bounds decide.
+void refine(const JacobianSpace& sp, const double* X, const double* normal, ElementQuality& q) {
+  const LagrangeBasis& b = LagrangeBasis::get(sp.shape, sp.order);
+  const int np = (int)sp.pts.size(), n = b.size();
+  std::vector<double> dN(3 * n);
+  std::deque<std::pair<std::vector<Vec3>, int>> todo;
+  for (auto& c : sp.children) todo.push_back({c, 1});
+  const int max_depth = 6, max_domains = 600;
+  int visited = 0;
+  Eigen::VectorXd v(np);
+  while (!todo.empty()) {
+    auto [dom, depth] = std::move(todo.front());
+    todo.pop_front();
+    if (++visited > max_domains) {
+      q.inconclusive = true;
+      return;
+    }
+    for (int p = 0; p < np; ++p) {
+      Vec3 xi = map_linear(sp.shape, dom, sp.pts[p]);
+      b.grad(xi, dN.data());
+      double J[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
+      for (int i = 0; i < n; ++i)
+        for (int r = 0; r < 3; ++r)
+          for (int c = 0; c < 3; ++c) J[3 * r + c] += X[3 * i + r] * dN[3 * i + c];
+      v[p] = det_at(sp.dim, J, normal);
+      q.min_det = std::min(q.min_det, v[p]);
+      q.max_det = std::max(q.max_det, v[p]);
+    }
+    if (v.minCoeff() <= 0) {
+      q.valid = false;
+      return;
+    }
+    Eigen::VectorXd c(np);
+    sp.to_bezier(v.data(), c.data());
+    if (c.minCoeff() > 0) continue;
+    if (depth >= max_depth) {
+      q.inconclusive = true;
+      continue;
+    }
+    for (auto& ch : sp.children) {
+      std::vector<Vec3> sub;
+      for (auto& cv : ch) sub.push_back(map_linear(sp.shape, dom, cv));
+      todo.push_back({sub, depth + 1});
+    }
+  }
+}
+
+// Classifies element e of a chunk given its det values and coefficients.
+void classify(const JacobianSpace& sp, const double* X, const double* normal, const double* vals,
+              const double* coef, ElementQuality& q) {
+  const int np = (int)sp.pts.size();
+  q.min_det = *std::min_element(vals, vals + np);
+  q.max_det = *std::max_element(vals, vals + np);
+  q.aspect_ratio = aspect(sp.shape, X);
+  if (!sp.bezier) {
+    q.sampled = true;
+    q.valid = q.min_det > 0;
+  } else if (q.min_det <= 0) {
+    q.valid = false;
+  } else if (*std::min_element(coef, coef + np) > 0) {
+    q.valid = true;
+  } else {
+    refine(sp, X, normal, q);
+  }
+  q.scaled_jacobian = q.max_det > 0 ? q.min_det / q.max_det : (q.min_det < 0 ? -1.0 : 0.0);
+  if (q.max_det <= 0) q.scaled_jacobian = q.min_det < 0 ? -1.0 : 0.0;
+}
+
+// Evaluates `count` elements whose coordinates are in X (n x 3count, column 3e+r).
+void evaluate_chunk(const JacobianSpace& sp, const Eigen::MatrixXd& X, int count, const double* normals,
+                    const std::vector<const double*>& xyz, ElementQuality* out) {
+  const int np = (int)sp.pts.size();
+  Eigen::MatrixXd GX = sp.G * X;  // (3np) x (3count)
+  Eigen::MatrixXd V(np, count);
+  for (int e = 0; e < count; ++e)
+    for (int p = 0; p < np; ++p) {
+      double J[9];
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c) J[3 * r + c] = GX(3 * p + c, 3 * e + r);
+      V(p, e) = det_at(sp.dim, J, normals + 3 * e);
+    }
+  Eigen::MatrixXd C(np, count);
+  if (sp.T.size())
+    C.noalias() = sp.T * V;
+  else if (sp.bezier)
+    for (int e = 0; e < count; ++e) sp.to_bezier(V.col(e).data(), C.col(e).data());
+  for (int e = 0; e < count; ++e)
+    classify(sp, xyz[e], normals + 3 * e, V.col(e).data(), sp.bezier ? C.col(e).data() : nullptr, out[e]);
+}
+
+}  // namespace
+
+ElementQuality element_quality(Shape s, int order, const double* X, const double* normal) {
+  ElementQuality q;
+  const int d = dimension(s);
+  if (d < 2) {
+    q.aspect_ratio = d == 1 ? 1 : 1;
+    return q;
+  }
+  const JacobianSpace& sp = space(s, order);
+  const int n = num_nodes(s, order);
+  double nrm[3] = {0, 0, 1};
+  if (d == 2) {
+    if (normal)
+      std::copy(normal, normal + 3, nrm);
+    else
+      straight_normal(s, X, nrm);
+  }
+  Eigen::MatrixXd M(n, 3);
+  for (int i = 0; i < n; ++i)
+    for (int r = 0; r < 3; ++r) M(i, r) = X[3 * i + r];
+  std::vector<const double*> xyz = {X};
+  evaluate_chunk(sp, M, 1, nrm, xyz, &q);
+  return q;
+}
+
+std::vector<std::vector<ElementQuality>> mesh_quality(const Mesh& m, int threads) {
+  std::vector<std::vector<ElementQuality>> res(m.blocks.size());
+  const int dim = m.dimension();
+  if (dim < 2) return res;
+  bool planar = true;
+  if (dim == 2)
+    for (size_t i = 1; i < m.num_nodes() && planar; ++i) planar = m.z[i] == m.z[0];
+  auto run = [&] {
+    for (size_t bi = 0; bi < m.blocks.size(); ++bi) {
+      const auto& b = m.blocks[bi];
+      if (dimension(b.shape) != dim) continue;
+      res[bi].resize(b.size());
+      const JacobianSpace& sp = space(b.shape, b.order);
+      const int n = b.nodes_per_element();
+      constexpr int kChunk = 32;
+      const size_t nchunks = (b.size() + kChunk - 1) / kChunk;
+      tbb::parallel_for(tbb::blocked_range<size_t>(0, nchunks), [&](const tbb::blocked_range<size_t>& r) {
+        Eigen::MatrixXd X(n, 3 * kChunk);
+        std::vector<double> coords(static_cast<size_t>(kChunk) * n * 3);
+        std::vector<double> normals(3 * kChunk);
+        std::vector<const double*> xyz(kChunk);
+        for (size_t c = r.begin(); c != r.end(); ++c) {
+          const size_t e0 = c * kChunk;
+          const int cnt = (int)std::min<size_t>(kChunk, b.size() - e0);
+          if (cnt < kChunk) X.setZero();
+          for (int e = 0; e < cnt; ++e) {
+            const std::uint32_t* nodes = b.element(e0 + e);
+            double* P = coords.data() + static_cast<size_t>(e) * n * 3;
+            for (int i = 0; i < n; ++i) {
+              P[3 * i] = m.x[nodes[i]];
+              P[3 * i + 1] = m.y[nodes[i]];
+              P[3 * i + 2] = m.z[nodes[i]];
+              for (int rr = 0; rr < 3; ++rr) X(i, 3 * e + rr) = P[3 * i + rr];
+            }
+            xyz[e] = P;
+            if (dim == 2) {
+              if (planar) {
+                normals[3 * e] = 0, normals[3 * e + 1] = 0, normals[3 * e + 2] = 1;
+              } else {
+                straight_normal(b.shape, P, &normals[3 * e]);
+              }
+            }
+          }
+          evaluate_chunk(sp, X, cnt, normals.data(), xyz, res[bi].data() + e0);
+        }
+      });
+    }
+  };
+  if (threads > 0) {
+    tbb::task_arena arena(threads);
+    arena.execute(run);
+  } else {
+    run();
+  }
+  return res;
+}
+
+nlohmann::json mesh_stats(const Mesh& m, int threads) {
+  using nlohmann::json;
+  json j;
+  const int dim = m.dimension();
+  j["order"] = m.order();
+  j["nodes"] = m.num_nodes();
+  json el = {{"tet", 0}, {"prism", 0}, {"hex", 0}, {"pyramid", 0}};
+  json bd = json::object();
+  std::map<std::string, std::size_t> by_type;
+  std::map<std::string, std::size_t> groups;
+  for (auto& b : m.blocks) {
+    const int d = dimension(b.shape);
+    std::string sn = shape_name(b.shape);
+    if (d == dim) el[sn] = el.value(sn, 0) + b.size();
+    if (d == dim - 1) bd[sn] = bd.value(sn, 0) + b.size();
+    by_type[sn + std::to_string(b.order)] += b.size();
+    const Entity* ent = m.find_entity(b.entity_dim, b.entity_tag);
+    if (ent)
+      for (int pt : ent->physicals) {
+        std::string name;
+        for (auto& p : m.physicals)
+          if (p.dim == b.entity_dim && p.tag == pt) name = p.name;
+        if (name.empty()) name = std::to_string(b.entity_dim) + ":" + std::to_string(pt);
+        groups[name] += b.size();
+      }
+  }
+  j["elements"] = el;
+  j["boundary"] = bd;
+  j["by_type"] = by_type;
+  j["groups"] = groups;
+
+  auto q = mesh_quality(m, threads);
+  std::size_t invalid = 0, inconclusive = 0, sampled = 0, total = 0;
+  std::vector<double> sj;
+  double max_ar = 0, volume = 0;
+  json invalid_tags = json::array();
+  std::uint64_t running = 0;
+  std::vector<double> sj_edges = {-1, 0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0000001};
+  std::vector<double> ar_edges = {1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 1e300};
+  std::vector<std::size_t> sj_counts(sj_edges.size() - 1), ar_counts(ar_edges.size() - 1);
+  auto bin = [](const std::vector<double>& edges, double v) {
+    for (size_t i = 0; i + 1 < edges.size(); ++i)
+      if (v < edges[i + 1]) return i;
+    return edges.size() - 2;
+  };
+  for (size_t bi = 0; bi < m.blocks.size(); ++bi) {
+    const auto& b = m.blocks[bi];
+    for (size_t e = 0; e < q[bi].size(); ++e) {
+      const auto& eq = q[bi][e];
+      ++total;
+      if (!eq.valid) {
+        ++invalid;
+        if (invalid_tags.size() < 100) invalid_tags.push_back(b.tags.empty() ? running + e + 1 : b.tags[e]);
+      }
+      if (eq.inconclusive) ++inconclusive;
+      if (eq.sampled) ++sampled;
+      sj.push_back(eq.scaled_jacobian);
+      max_ar = std::max(max_ar, eq.aspect_ratio);
+      sj_counts[bin(sj_edges, eq.scaled_jacobian)]++;
+      ar_counts[bin(ar_edges, eq.aspect_ratio)]++;
+    }
+    running += b.size();
+  }
+  (void)volume;
+  j["invalid"] = invalid;
+  j["invalid_elements"] = invalid_tags;
+  j["inconclusive"] = inconclusive;
+  j["nonconforming_faces"] = build_topology(m).nonconforming_faces;
+  double mn = 1, med = 1;
+  if (!sj.empty()) {
+    mn = *std::min_element(sj.begin(), sj.end());
+    std::vector<double> s = sj;
+    std::nth_element(s.begin(), s.begin() + s.size() / 2, s.end());
+    med = s[s.size() / 2];
+  }
+  j["min_scaled_jacobian"] = mn;
+  j["median_scaled_jacobian"] = med;
+  j["max_aspect_ratio"] = total ? max_ar : 1.0;
+  j["validity_method"] = sampled ? "bezier (pyramids: sampling)" : "bezier";
+  sj_edges.back() = 1.0;
+  ar_edges.back() = 1e300;
+  j["histograms"] = {{"scaled_jacobian", {{"edges", sj_edges}, {"counts", sj_counts}}},
+                     {"aspect_ratio", {{"edges", std::vector<double>(ar_edges.begin(), ar_edges.end() - 1)},
+                                       {"counts", ar_counts}}}};
+  // bounding box and a geometric fingerprint (moments of the node coordinates)
+  double bb[6] = {0, 0, 0, 0, 0, 0};
+  double m1[3] = {0, 0, 0}, m2[6] = {0, 0, 0, 0, 0, 0};
+  if (m.num_nodes()) {
+    bb[0] = bb[3] = m.x[0];
+    bb[1] = bb[4] = m.y[0];
+    bb[2] = bb[5] = m.z[0];
+  }
+  for (size_t i = 0; i < m.num_nodes(); ++i) {
+    const double p[3] = {m.x[i], m.y[i], m.z[i]};
+    for (int r = 0; r < 3; ++r) {
+      bb[r] = std::min(bb[r], p[r]);
+      bb[3 + r] = std::max(bb[3 + r], p[r]);
+      m1[r] += p[r];
+    }
+    m2[0] += p[0] * p[0], m2[1] += p[1] * p[1], m2[2] += p[2] * p[2];
+    m2[3] += p[0] * p[1], m2[4] += p[1] * p[2], m2[5] += p[0] * p[2];
+  }
+  const double nn = m.num_nodes() ? double(m.num_nodes()) : 1.0;
+  j["bbox"] = {bb[0], bb[1], bb[2], bb[3], bb[4], bb[5]};
+  j["fingerprint"] = {{"centroid", {m1[0] / nn, m1[1] / nn, m1[2] / nn}},
+                      {"second_moments", {m2[0] / nn, m2[1] / nn, m2[2] / nn, m2[3] / nn, m2[4] / nn, m2[5] / nn}}};
+  return j;
+}
+
+}  // namespace meshflow::model

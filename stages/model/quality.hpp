@@ -1,0 +1,61 @@
+// meshflow mesh model — validity and quality of high-order elements.
+//
+// Validity (method "bezier"): det J > 0 over the whole element. det J of an order-P element
+// is a polynomial: degree 3(P-1) on a tet, 2(P-1) on a triangle, 3P-1 per direction on a hex
+// (Q_P: d/dxi lowers one direction only), 2P-1 per direction on a quad, and on a prism
+// (P_P(tri) x P_P(line)) degree 3P-2 in the triangle variables times 3P-1 in the prism axis.
+// We interpolate det J at the equispaced lattice of that degree, convert the values to
+// Bernstein (Bezier) coefficients; all coefficients > 0 proves validity (the polynomial is a
+// convex combination of them), a sampled value <= 0 proves invalidity, otherwise the domain
+// is subdivided (simplices into 4/8, boxes into 4/8, prisms into 8) and each part is checked
+// again (up to depth 6; still inconclusive then = valid, reported in "inconclusive").
+// This is the method of Johnen, Remacle and Geuzaine (2013) that Gmsh uses.
+// Pyramids (method "sampling"): Gmsh's pyramidal space is rational, so det J is not a
+// polynomial; we sample det J at the equispaced pyramid lattice of order 3P+2 (apex
+// excluded). A pyramid valid at all samples but invalid between them can be missed.
+//
+// Scaled Jacobian: min det J / max det J over the samples (the Bezier lattice points and
+// those of the subdivisions). <= 0 for invalid elements.
+// Aspect ratio: longest / shortest straight vertex-to-vertex edge of the element (for a thin
+// boundary-layer prism: tangential size / layer thickness, the paper's "aspect ratio").
+// 2D elements are measured with det = (dx/dxi x dx/deta) . n, n = +z for a mesh in a plane
+// z = const, else the normal of the element's straight (vertex) geometry.
+#pragma once
+
+#include "stages/model/mesh.hpp"
+
+#include <nlohmann/json_fwd.hpp>
+
+#include <cstdint>
+#include <vector>
+
+namespace meshflow::model {
+
+struct ElementQuality {
+  double min_det = 0, max_det = 0;
+  double scaled_jacobian = 1;
+  double aspect_ratio = 1;
+  bool valid = true;
+  bool inconclusive = false;  // Bezier bounds inconclusive at the maximum depth
+  bool sampled = false;       // method "sampling" (pyramids)
+};
+
+// Quality of one element; X = 3*num_nodes(s, order) coordinates (Gmsh node order).
+// `normal` is used for 2D elements (may be null: the straight-geometry normal).
+ElementQuality element_quality(Shape s, int order, const double* X, const double* normal = nullptr);
+
+// Quality of every element of the mesh's highest dimension: result[b][e] for block b
+// (empty for the lower-dimensional blocks). Deterministic for any thread count.
+std::vector<std::vector<ElementQuality>> mesh_quality(const Mesh& m, int threads = 0);
+
+// The statistics of the whole mesh as stored in stats.mesh and printed by
+// `meshflow quality --json`:
+//   {"order", "nodes", "elements": {tet, prism, hex, pyramid, tri, quad, line},
+//    "boundary": {tri, quad, line}, "by_type": {"tet4": n, ...}, "groups": {name: faces},
+//    "invalid", "invalid_elements": [tags, at most 100], "inconclusive", "nonconforming_faces",
+//    "min_scaled_jacobian", "median_scaled_jacobian", "max_aspect_ratio",
+//    "histograms": {"scaled_jacobian": {edges, counts}, "aspect_ratio": {...}},
+//    "validity_method", "bbox", "fingerprint"}
+nlohmann::json mesh_stats(const Mesh& m, int threads = 0);
+
+}  // namespace meshflow::model

@@ -1,0 +1,250 @@
+// Tests of the mesh model: node layouts (against Gmsh itself), Lagrange bases, mappings,
+// validity (Bezier bounds) and quality, topology.
+#include <doctest/doctest.h>
+
+#include "stages/model/basis.hpp"
+#include "stages/model/element.hpp"
+#include "stages/model/mesh.hpp"
+#include "stages/model/quality.hpp"
+#include "stages/model/topology.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <set>
+#include <sstream>
+#include <string>
+
+using namespace meshflow::model;
+
+namespace {
+const Shape kAll[] = {Shape::Line, Shape::Tri, Shape::Quad, Shape::Tet, Shape::Prism, Shape::Pyramid, Shape::Hex};
+
+std::string run_python(const std::string& script) {
+  auto dir = std::filesystem::temp_directory_path() / ("mf_model_" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  auto py = dir / "s.py", out = dir / "out.txt";
+  std::ofstream(py) << script;
+  std::string cmd = std::string(MESHFLOW_PYTHON) + " " + py.string() + " > " + out.string() + " 2>/dev/null";
+  int rc = std::system(cmd.c_str());
+  REQUIRE_MESSAGE(rc == 0, "python failed: " << cmd);
+  std::ifstream in(out);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  std::filesystem::remove_all(dir);
+  return ss.str();
+}
+
+// Reference element nodes mapped affinely: an undistorted element of the shape.
+std::vector<double> straight(Shape s, int p, double sx = 1, double sy = 1, double sz = 1) {
+  std::vector<double> X;
+  for (auto& r : reference_nodes(s, p)) {
+    X.push_back(r[0] * sx + 0.1 * r[1]);
+    X.push_back(r[1] * sy);
+    X.push_back(r[2] * sz);
+  }
+  return X;
+}
+}  // namespace
+
+TEST_CASE("node layouts have the right size and distinct nodes, vertices first") {
+  for (Shape s : kAll)
+    for (int p = 1; p <= kMaxOrder; ++p) {
+      const auto& l = lattice(s, p);
+      CHECK(l.size() == (size_t)num_nodes(s, p));
+      std::set<Lattice> u(l.begin(), l.end());
+      CHECK(u.size() == l.size());
+      for (int v = 0; v < num_vertices(s); ++v) CHECK(reference_nodes(s, p)[v] == reference_nodes(s, 1)[v]);
+    }
+}
+
+TEST_CASE("node layouts equal Gmsh's own (getElementProperties), orders 1-6") {
+  std::string script =
+      "import gmsh\ngmsh.initialize()\ngmsh.option.setNumber('General.Terminal',0)\n"
+      "gmsh.option.setNumber('General.AbortOnError',0)\n"
+      "for t in [1,8,26,27,28,62,2,9,21,23,25,42,3,10,36,37,38,47,4,11,29,30,31,71,6,13,90,91,106,107,"
+      "7,14,118,119,120,121,5,12,92,93,94,95]:\n"
+      "  p=gmsh.model.mesh.getElementProperties(t)\n"
+      "  print(t, p[1], len(p[4]), ' '.join('%.15g'%v for v in p[4]))\n";
+  std::istringstream in(run_python(script));
+  int t, n, dim, checked = 0;
+  while (in >> t >> dim >> n) {
+    Shape s;
+    int p;
+    REQUIRE(from_gmsh_type(t, s, p));
+    std::vector<double> c(n);
+    for (auto& v : c) in >> v;
+    const auto& ref = reference_nodes(s, p);
+    REQUIRE(c.size() == dim * ref.size());
+    double err = 0;
+    for (size_t i = 0; i < ref.size(); ++i)
+      for (int r = 0; r < dim; ++r) err = std::max(err, std::abs(ref[i][r] - c[dim * i + r]));
+    INFO("gmsh type " << t << " (" << shape_name(s) << " order " << p << ")");
+    CHECK(err < 1e-12);
+    ++checked;
+  }
+  CHECK(checked == 42);
+}
+
+TEST_CASE("Lagrange bases interpolate at their nodes and reproduce linear fields") {
+  for (Shape s : kAll)
+    for (int p = 1; p <= 6; ++p) {
+      const LagrangeBasis& b = LagrangeBasis::get(s, p);
+      std::vector<double> N(b.size()), dN(3 * b.size());
+      double err = 0;
+      for (int i = 0; i < b.size(); ++i) {
+        if (s == Shape::Pyramid && b.nodes()[i][2] > 1 - 1e-12) continue;
+        b.eval(b.nodes()[i], N.data());
+        for (int k = 0; k < b.size(); ++k) err = std::max(err, std::abs(N[k] - (i == k)));
+      }
+      INFO(shape_name(s) << " order " << p);
+      CHECK(err < 1e-8);
+      // gradient of x + 2y - z is (1, 2, -1) everywhere
+      Vec3 xi = {0.21, 0.13, s == Shape::Pyramid ? 0.3 : 0.11};
+      if (dimension(s) < 3) xi[2] = 0;
+      if (dimension(s) < 2) xi[1] = 0;
+      b.grad(xi, dN.data());
+      double g[3] = {0, 0, 0};
+      for (int i = 0; i < b.size(); ++i) {
+        auto& r = b.nodes()[i];
+        double f = r[0] + 2 * r[1] - r[2];
+        for (int c = 0; c < 3; ++c) g[c] += f * dN[3 * i + c];
+      }
+      CHECK(g[0] == doctest::Approx(1).epsilon(1e-7));
+      if (dimension(s) >= 2) CHECK(g[1] == doctest::Approx(2).epsilon(1e-7));
+      if (dimension(s) >= 3) CHECK(g[2] == doctest::Approx(-1).epsilon(1e-7));
+    }
+}
+
+TEST_CASE("straight elements are valid with scaled Jacobian 1; swapped vertices are invalid") {
+  for (Shape s : {Shape::Tri, Shape::Quad, Shape::Tet, Shape::Prism, Shape::Hex, Shape::Pyramid})
+    for (int p = 1; p <= 6; ++p) {
+      auto X = straight(s, p, 2, 1, 0.5);
+      auto q = element_quality(s, p, X.data());
+      INFO(shape_name(s) << " order " << p);
+      CHECK(q.valid);
+      CHECK(q.scaled_jacobian == doctest::Approx(1).epsilon(1e-9));
+      // mirror the element: every det J < 0
+      for (size_t i = 0; i < X.size(); i += 3) X[i] = -X[i];
+      auto m = element_quality(s, p, X.data(), dimension(s) == 2 ? std::array<double, 3>{0, 0, 1}.data() : nullptr);
+      CHECK_FALSE(m.valid);
+      CHECK(m.scaled_jacobian < 0);
+    }
+}
+
+TEST_CASE("a P=4 tet valid at every node but invalid between them is reported invalid") {
+  const int P = 4;
+  const LagrangeBasis& b = LagrangeBasis::get(Shape::Tet, P);
+  std::vector<double> X0;  // the reference tet itself
+  for (auto& r : reference_nodes(Shape::Tet, P)) X0.insert(X0.end(), r.begin(), r.end());
+  // the edge node of edge 0 (vertices 0-1) nearest vertex 0 is local node 4; moving it along
+  // the edge makes dx/dxi = 1 + delta L4'(xi) along that edge.
+  auto det_min = [&](const std::vector<double>& X, const std::vector<Vec3>& pts) {
+    double mn = 1e300, J[9];
+    for (auto& xi : pts) {
+      jacobian(b, X.data(), xi, J);
+      mn = std::min(mn, jacobian_determinant(3, J, nullptr));
+    }
+    return mn;
+  };
+  std::vector<Vec3> fine;
+  const int F = 40;
+  for (int i = 0; i <= F; ++i)
+    for (int j = 0; i + j <= F; ++j)
+      for (int k = 0; i + j + k <= F; ++k) fine.push_back({i / double(F), j / double(F), k / double(F)});
+  // The middle node of edge 0-1, pushed 0.14 towards the inside (+y): found by a search in
+  // Python (numpy, Gmsh's node coordinates); both facts are checked here independently.
+  auto X = X0;
+  X[3 * 5 + 1] += 0.14;
+  const double at_nodes = det_min(X, b.nodes());
+  const double between = det_min(X, fine);
+  INFO("min det J at nodes " << at_nodes << ", between nodes " << between);
+  REQUIRE(at_nodes > 0.1);
+  REQUIRE(between < -0.01);
+  auto q = element_quality(Shape::Tet, P, X.data());
+  CHECK_FALSE(q.valid);
+  CHECK(q.scaled_jacobian <= 0);
+  // and a smaller push stays valid (certified)
+  X[3 * 5 + 1] -= 0.1;
+  CHECK(element_quality(Shape::Tet, P, X.data()).valid);
+}
+
+TEST_CASE("curved but valid P=4 elements are certified valid") {
+  for (Shape s : {Shape::Tet, Shape::Prism, Shape::Hex, Shape::Tri, Shape::Quad}) {
+    auto X = straight(s, 4);
+    for (size_t i = 0; i < X.size(); i += 3) {  // smooth bending
+      X[i + 1] += 0.05 * std::sin(2 * X[i]);
+      X[i + 2] += 0.05 * std::cos(X[i + 1]) * (dimension(s) == 3);
+    }
+    auto q = element_quality(s, 4, X.data());
+    INFO(shape_name(s));
+    CHECK(q.valid);
+    CHECK(q.scaled_jacobian < 1);
+    CHECK(q.scaled_jacobian > 0.5);
+  }
+}
+
+TEST_CASE("aspect ratio of a thin prism is tangential size over thickness") {
+  auto X = straight(Shape::Prism, 2, 1, 1, 0.01);  // z in [-0.01, 0.01]: thickness 0.02
+  auto q = element_quality(Shape::Prism, 2, X.data());
+  double longest = std::sqrt(1.1 * 1.1 + 1.0);  // hypotenuse of the sheared triangle
+  (void)longest;
+  CHECK(q.aspect_ratio == doctest::Approx(std::sqrt((0.9 * 0.9 + 1.0)) / 0.02).epsilon(1e-9));
+}
+
+TEST_CASE("sub-element mapping: the identity sub-element reproduces the parent's nodes") {
+  auto X = straight(Shape::Tet, 4);
+  for (size_t i = 0; i < X.size(); i += 3) X[i + 2] += 0.1 * X[i] * X[i];
+  auto same = map_sub_element(Shape::Tet, 4, X.data(), Shape::Tet, 4, {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}});
+  for (size_t i = 0; i < X.size(); ++i) CHECK(same[i] == doctest::Approx(X[i]).epsilon(1e-10));
+  // a prism split in two layers: the lower sub-prism's top nodes are the parent's mid-plane
+  auto P = straight(Shape::Prism, 3);
+  auto lo = map_sub_element(Shape::Prism, 3, P.data(), Shape::Prism, 3,
+                            {{0, 0, -1}, {1, 0, -1}, {0, 1, -1}, {0, 0, 0}, {1, 0, 0}, {0, 1, 0}});
+  CHECK(lo[3 * 3 + 2] == doctest::Approx(0.0));
+  CHECK(lo[3 * 0 + 2] == doctest::Approx(-1.0));
+}
+
+TEST_CASE("topology of two P=2 tets sharing a face; conformity") {
+  Mesh m;
+  auto X = straight(Shape::Tet, 2);
+  for (size_t i = 0; i < X.size(); i += 3) m.add_node(X[i], X[i + 1], X[i + 2]);
+  auto& b = m.block(Shape::Tet, 2, 3, 1);
+  std::vector<std::uint32_t> e1(10);
+  for (int i = 0; i < 10; ++i) e1[i] = i;
+  b.add(e1.data());
+  // second tet: mirror vertex 3 through the face (0,1,2); shares face 0 and its edge nodes
+  std::uint32_t apex = m.add_node(0, 0, -1);
+  // local edges of a tet: 01,12,20,30,32,31 -> nodes 4..9
+  std::uint32_t n30 = m.add_node(0, 0, -0.5), n32 = m.add_node(0, 0.5, -0.5), n31 = m.add_node(0.5, 0, -0.5);
+  std::vector<std::uint32_t> e2 = {0, 2, 1, apex, 6, 5, 4, n30, n31, n32};
+  b.add(e2.data());
+  auto t = build_topology(m);
+  CHECK(t.faces.size() == 7);
+  CHECK(t.boundary_faces == 6);
+  CHECK(t.nonconforming_faces == 0);
+  CHECK(t.edges.size() == 9);
+  auto stats = mesh_stats(m);
+  CHECK(stats["invalid"] == 0);
+  CHECK(stats["elements"]["tet"] == 2);
+  // break conformity: the second element gets its own copy of a shared edge node
+  m.blocks[0].nodes[10 + 4] = m.add_node(0.5, 0.5, 0.0);
+  CHECK(build_topology(m).nonconforming_faces == 1);
+  CHECK(mesh_stats(m)["nonconforming_faces"] == 1);
+}
+
+TEST_CASE("mesh check names bad node indices and non-finite coordinates") {
+  Mesh m;
+  m.add_node(0, 0, 0);
+  m.add_node(1, 0, 0);
+  m.block(Shape::Line, 1, 1, 1).add({0, 5});
+  CHECK_THROWS_WITH_AS(m.check(), doctest::Contains("node index 5"), std::invalid_argument);
+  m.blocks[0].nodes[1] = 1;
+  CHECK_NOTHROW(m.check());
+  m.x[1] = NAN;
+  CHECK_THROWS_WITH_AS(m.check(), doctest::Contains("non-finite"), std::invalid_argument);
+}
