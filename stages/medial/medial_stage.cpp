@@ -13,6 +13,7 @@
 #include <chrono>
 #include <cmath>
 #include <set>
+#include <thread>
 
 namespace meshflow::medial {
 namespace {
@@ -31,6 +32,8 @@ class CadModel : public BoundaryModel {
  public:
   CadModel(const cad::Shape& s, const std::set<cad::Tag>& refine) : s_(s) {
     refined_.resize(s.num_faces());
+    planar_.resize(s.num_faces());
+    for (int f = 0; f < s.num_faces(); ++f) planar_[f] = s.face_surface_type(f) == "plane";
     bool any = false;
     for (int f = 0; f < s.num_faces(); ++f) any |= (refined_[f] = refine.count(s.face_tag(f)) > 0);
     if (!any) std::fill(refined_.begin(), refined_.end(), true);
@@ -61,6 +64,7 @@ class CadModel : public BoundaryModel {
   Vec3 face_point(int f, double u, double v) const override { return v3(s_.face_point(f, u, v)); }
   Vec3 face_normal(int f, double u, double v) const override { return v3(s_.face_normal(f, u, v)); }
   double face_curvature(int f, double u, double v) const override {
+    if (planar_[f]) return 0;
     auto c = s_.face_curvature(f, u, v);
     if (!c.defined) return 0;
     double k = std::max(std::abs(c.k1), std::abs(c.k2));
@@ -101,44 +105,65 @@ class CadModel : public BoundaryModel {
 
  private:
   const cad::Shape& s_;
-  std::vector<char> refined_;
+  std::vector<char> refined_, planar_;
   bool all_refined_fallback_ = false;
   std::vector<std::vector<int>> vfaces_;
   std::vector<std::vector<std::pair<int, int>>> vedges_;
 };
 
 // Radius = distance to the boundary: the minimum over the contact faces of the distance to the
-// face (projection inside the trimmed face), never above the empty-ball radius.
-long refine_radii(const cad::Shape& shape, MedialObject& M) {
-  long projected = 0;
-  for (auto& p : M.points) {
-    std::vector<std::pair<int, cad::Vec2>> faces;  // face, uv hint
-    for (auto q : p.contacts) {
-      const Sample& s = M.samples[q];
-      for (int f : s.faces) {
-        if (f < 0) continue;
-        bool seen = false;
-        for (auto& fh : faces) seen |= fh.first == f;
-        if (!seen && s.kind == 0) faces.push_back({f, {s.u, s.v}});
+// face (projection inside the trimmed face), never above the empty-ball radius. Planar faces
+// need no projection (the distance to the plane of a contact sample is exact). A foot point within
+// two spacings of a contact sample on that face is inside it; farther ones are classified.
+// Parallel over medial points with one Shape clone per thread (each point is independent, so
+// the result does not depend on the thread count).
+long refine_radii(const cad::Shape& shape, MedialObject& M, int threads) {
+  const int nf = shape.num_faces();
+  std::vector<char> planar(nf);
+  for (int f = 0; f < nf; ++f) planar[f] = shape.face_surface_type(f) == "plane";
+  const std::size_t np = M.points.size();
+  threads = std::max(1, std::min(threads, static_cast<int>(np / 2000) + 1));
+  std::vector<long> counts(threads, 0);
+  auto work = [&](int t) {
+    cad::Shape mine = shape.clone();
+    for (std::size_t i = t; i < np; i += threads) {
+      MedialPoint& p = M.points[i];
+      std::vector<int> done;
+      double r = p.ball_radius;
+      bool any = false;
+      for (auto q : p.contacts) {
+        const Sample& s = M.samples[q];
+        if (s.kind != 0 || std::find(done.begin(), done.end(), s.id) != done.end()) continue;
+        done.push_back(s.id);
+        if (planar[s.id]) {
+          double d = std::abs((p.c[0] - s.p[0]) * s.n[0] + (p.c[1] - s.p[1]) * s.n[1] + (p.c[2] - s.p[2]) * s.n[2]);
+          r = std::min(r, d);
+          any = true;
+          continue;
+        }
+        auto pr = mine.project_to_face(s.id, cv(p.c), cad::Vec2{s.u, s.v});
+        if (!std::isfinite(pr.distance)) continue;
+        double dq = std::hypot(pr.point.x - s.p[0], pr.point.y - s.p[1], pr.point.z - s.p[2]);
+        if (dq > 2 * s.h && !mine.face_contains_uv(s.id, pr.u, pr.v, 1e-7)) continue;
+        r = std::min(r, pr.distance);
+        any = true;
+        ++counts[t];
       }
+      if (any) p.radius = r;
     }
-    double r = p.ball_radius;
-    bool any = false;
-    for (auto& [f, hint] : faces) {
-      auto pr = shape.project_to_face(f, cv(p.c), hint);
-      if (!std::isfinite(pr.distance) || !shape.face_contains_uv(f, pr.u, pr.v, 1e-7)) continue;
-      r = std::min(r, pr.distance);
-      any = true;
-      ++projected;
-    }
-    if (any) p.radius = r;
-  }
+  };
+  std::vector<std::thread> pool;
+  for (int t = 1; t < threads; ++t) pool.emplace_back(work, t);
+  work(0);
+  for (auto& th : pool) th.join();
   for (std::size_t i = 0; i < M.info.size(); ++i) {
     auto& si = M.info[i];
     if (si.pole_in >= 0) si.r_in = M.points[si.pole_in].radius;
     if (si.pole_out >= 0) si.r_out = M.points[si.pole_out].radius;
   }
-  return projected;
+  long total = 0;
+  for (long c : counts) total += c;
+  return total;
 }
 
 double now() {
@@ -167,7 +192,7 @@ void run(StageContext& ctx) {
   long projected = 0;
   if (P.at("refine_radius").get<bool>()) {
     ctx.progress(0.95, "projecting medial points");
-    projected = refine_radii(shape, M);
+    projected = refine_radii(shape, M, ctx.threads());
   }
   double t2 = now();
   nlohmann::json h = nlohmann::json::parse(M.header);

@@ -48,7 +48,7 @@ struct Field {
     double h = refined ? h_ref : h_far;
     if (kappa > 0) h = std::min(h, turn / kappa);
     if (idx)
-      for (auto& [j, d] : idx->nearest(p, 8)) h = std::min(h, (*src_h)[j] + grading * d);
+      for (auto& [j, d] : idx->nearest(p, 4)) h = std::min(h, (*src_h)[j] + grading * d);
     return std::max(h, h_min);
   }
 };
