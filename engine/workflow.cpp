@@ -6,6 +6,7 @@
 #include <yaml-cpp/yaml.h>
 
 #include <algorithm>
+#include <cstdlib>
 #include <fstream>
 #include <functional>
 #include <map>
@@ -79,7 +80,8 @@ json scalar_to_json(const YAML::Node& n, bool* plain) {
     } catch (...) {
     }
   }
-  if (std::regex_match(t, float_re)) return std::stod(t);
+  // strtod, not stod: 1e999 is +inf (rejected later as not finite), not an exception (fuzzing).
+  if (std::regex_match(t, float_re)) return std::strtod(t.c_str(), nullptr);
   if (t == ".inf" || t == "+.inf") return std::numeric_limits<double>::infinity();
   if (t == "-.inf") return -std::numeric_limits<double>::infinity();
   return t;
