@@ -315,6 +315,21 @@ std::string disk_hint(const fs::path& root) {
          " KiB free: free some space, run `meshflow gc --max-size ...`, or use another cache with --cache DIR)";
 }
 
+// One human line of a stage's stats.mesh (the engine knows the field names, not meshes).
+std::string mesh_line(const std::string& stage, const json& m) {
+  std::ostringstream s;
+  auto num = [&](const char* k) { return m.contains(k) && m[k].is_number() ? m[k].get<double>() : NAN; };
+  s << "mesh " << stage << ": order " << m.value("order", 0) << ", " << m.value("nodes", 0) << " nodes,";
+  if (m.contains("elements") && m["elements"].is_object())
+    for (auto k : {"tet", "prism", "hex", "pyramid"})
+      if (m["elements"].value(k, 0) > 0) s << " " << m["elements"][k].get<long long>() << " " << k;
+  s << "; invalid " << m.value("invalid", -1) << ", non-conforming faces " << m.value("nonconforming_faces", -1)
+    << ", min scaled Jacobian " << fmt(num("min_scaled_jacobian"), 3) << ", max aspect ratio " << fmt(num("max_aspect_ratio"), 1);
+  if (m.contains("validity_method"))
+    s << " (validity: " << (m["validity_method"].is_string() ? m["validity_method"].get<std::string>() : m["validity_method"].dump()) << ")";
+  return s.str();
+}
+
 }  // namespace
 
 RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
@@ -591,10 +606,7 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
         << std::setw(9) << (r.status == "ran" ? fmt(r.seconds, 2) : "-") << std::setw(9)
         << (r.status == "ran" ? fmt(r.peak_rss_mb, 0) : "-") << "  " << r.key.substr(0, 12) << "\n";
   for (auto& r : rr.stages)
-    if (r.stats.contains("mesh") && r.stats["mesh"].is_object()) {
-      auto& m = r.stats["mesh"];
-      out << "mesh after " << r.name << ": " << m.dump() << "\n";
-    }
+    if (r.stats.contains("mesh") && r.stats["mesh"].is_object()) out << mesh_line(r.name, r.stats["mesh"]) << "\n";
 
   if (opt.materialise) {
     rr.out_dir = opt.out_dir.empty() ? fs::current_path() / "out" / wf.name : fs::absolute(opt.out_dir);

@@ -69,6 +69,9 @@ TEST_CASE("a second run is all cache hits and calls no stage function") {
   CHECK(report["stages"][2]["stats"]["bytes"] == 10);
   CHECK(report["stages"][0]["status"] == "ran");
   CHECK(report["stages"][0]["peak_rss_mb"].get<double>() > 0);
+  // the summary has a human line per mesh-producing stage
+  CHECK(r1.out.find("mesh c: order 4, 10 nodes, 3 tet; invalid 0, non-conforming faces 0, min scaled Jacobian 0.500, max aspect ratio 70.0") !=
+        std::string::npos);
 
   f.reset_calls();
   auto r2 = f.run();

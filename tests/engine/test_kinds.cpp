@@ -164,6 +164,10 @@ meshflow::StageRegistrar cat({.kind = "t_cat",
                                     s += ctx.params()["suffix"].get<std::string>();
                                     mftest::write_text(ctx.output("blob", "t_blob"), s);
                                     ctx.stats()["bytes"] = s.size();
+                                    // the shape of stats.mesh, for the summary line
+                                    ctx.stats()["mesh"] = {{"order", 4}, {"nodes", s.size()}, {"elements", {{"tet", 3}, {"prism", 0}}},
+                                                           {"invalid", 0}, {"nonconforming_faces", 0},
+                                                           {"min_scaled_jacobian", 0.5}, {"max_aspect_ratio", 70.0}};
                                   },
                               .schema = R"({"type":"object","additionalProperties":false,"properties":{
                                 "suffix":{"type":"string","default":"","description":"appended text"}}})"});
