@@ -49,6 +49,8 @@ class CadModel : public BoundaryModel {
         vfaces_[ends[k]].insert(vfaces_[ends[k]].end(), fs.begin(), fs.end());
       }
     }
+    polys_.resize(s.num_faces());
+    for (int f = 0; f < s.num_faces(); ++f) build_poly(f);
     for (auto& v : vfaces_) {
       std::sort(v.begin(), v.end());
       v.erase(std::unique(v.begin(), v.end()), v.end());
@@ -70,7 +72,28 @@ class CadModel : public BoundaryModel {
     double k = std::max(std::abs(c.k1), std::abs(c.k2));
     return std::isfinite(k) ? k : 0;
   }
-  bool face_contains(int f, double u, double v) const override { return s_.face_contains_uv(f, u, v, 1e-9); }
+  // Even-odd test against the face's wires as uv polygons (64 points per edge use); points
+  // within `band` of a polygon (4x the largest measured chord deviation) go to the exact
+  // OCCT classifier, as do faces whose polygons could not be built.
+  bool face_contains(int f, double u, double v) const override {
+    const FacePoly& fp = polys_[f];
+    if (!fp.ok) return s_.face_contains_uv(f, u, v, 1e-9);
+    bool in = false;
+    double dmin = INFINITY;
+    for (auto& loop : fp.loops) {
+      const std::size_t n = loop.size();
+      for (std::size_t i = 0, j = n - 1; i < n; j = i++) {
+        auto [ui, vi] = loop[i];
+        auto [uj, vj] = loop[j];
+        if ((vi > v) != (vj > v) && u < (uj - ui) * (v - vi) / (vj - vi) + ui) in = !in;
+        double du = uj - ui, dv = vj - vi, l2 = du * du + dv * dv;
+        double t = l2 > 0 ? std::clamp(((u - ui) * du + (v - vi) * dv) / l2, 0.0, 1.0) : 0.0;
+        dmin = std::min(dmin, std::hypot(u - ui - t * du, v - vi - t * dv));
+      }
+    }
+    if (dmin <= fp.band) return s_.face_contains_uv(f, u, v, 1e-9);
+    return in;
+  }
   bool face_refined(int f) const override { return refined_[f]; }
   int num_edges() const override { return s_.num_edges(); }
   bool edge_degenerate(int e) const override { return s_.edge_degenerate(e); }
@@ -106,10 +129,94 @@ class CadModel : public BoundaryModel {
  private:
   const cad::Shape& s_;
   std::vector<char> refined_, planar_;
+  struct FacePoly {
+    bool ok = false;
+    double band = 0;
+    std::vector<std::vector<std::pair<double, double>>> loops;
+  };
+  std::vector<FacePoly> polys_;
+  void build_poly(int f) {
+    FacePoly fp;
+    try {
+      auto b = s_.face_uv_bounds(f);
+      double sag = 0;
+      for (auto& wire : s_.face_wires(f)) {
+        std::vector<std::pair<double, double>> loop;
+        for (auto& eu : wire) {
+          auto r = s_.edge_range(eu.edge);
+          const int N = 64;
+          for (int k = 0; k < N; ++k) {
+            double a = eu.reversed ? 1.0 - double(k) / N : double(k) / N;
+            double an = eu.reversed ? 1.0 - double(k + 1) / N : double(k + 1) / N;
+            double t = r.lo + a * (r.hi - r.lo), tn = r.lo + an * (r.hi - r.lo);
+            auto p0 = s_.edge_uv(eu.edge, f, t, eu.reversed), p1 = s_.edge_uv(eu.edge, f, tn, eu.reversed);
+            auto pm = s_.edge_uv(eu.edge, f, 0.5 * (t + tn), eu.reversed);
+            sag = std::max(sag, std::hypot(pm.u - 0.5 * (p0.u + p1.u), pm.v - 0.5 * (p0.v + p1.v)));
+            loop.push_back({p0.u, p0.v});
+          }
+        }
+        if (loop.size() >= 3) fp.loops.push_back(std::move(loop));
+      }
+      double ext = std::max(b.u1 - b.u0, b.v1 - b.v0);
+      fp.band = std::max(4 * sag, 1e-6 * ext);
+      fp.ok = !fp.loops.empty() && std::isfinite(fp.band);
+      for (auto& l : fp.loops)
+        for (auto& [u, v] : l) fp.ok = fp.ok && std::isfinite(u) && std::isfinite(v);
+    } catch (...) {
+      fp.ok = false;
+    }
+    polys_[f] = std::move(fp);
+  }
   bool all_refined_fallback_ = false;
   std::vector<std::vector<int>> vfaces_;
   std::vector<std::vector<std::pair<int, int>>> vedges_;
 };
+
+struct Foot {
+  double u = 0, v = 0, distance = INFINITY;
+  Vec3 p{};
+};
+// Nearest point of face f to c near (u,v): damped Newton on |S(u,v) - c|^2 with the second
+// derivatives (Gauss-Newton where the Hessian is not positive definite), inside the uv bounds.
+// A local search from the contact sample's parameters: far cheaper than a global projection.
+Foot newton_foot(const cad::Shape& s, int f, const Vec3& c, double u, double v, const cad::UVBounds& b) {
+  auto d3 = [](const cad::Vec3& a, const cad::Vec3& q) { return a.x * q.x + a.y * q.y + a.z * q.z; };
+  auto dist = [&](double uu, double vv) {
+    auto q = s.face_point(f, uu, vv);
+    return std::hypot(q.x - c[0], q.y - c[1], q.z - c[2]);
+  };
+  const double tol = 1e-12 * std::max(b.u1 - b.u0, b.v1 - b.v0);
+  double cur = dist(u, v);
+  for (int it = 0; it < 30; ++it) {
+    cad::SurfDeriv d = s.face_eval(f, u, v);
+    cad::Vec3 r{d.p.x - c[0], d.p.y - c[1], d.p.z - c[2]};
+    double gu = d3(r, d.du), gv = d3(r, d.dv);
+    double a = d3(d.du, d.du) + d3(r, d.duu), bb = d3(d.du, d.dv) + d3(r, d.duv), cc = d3(d.dv, d.dv) + d3(r, d.dvv);
+    double det = a * cc - bb * bb;
+    if (!(a > 0 && det > 0)) {
+      a = d3(d.du, d.du), bb = d3(d.du, d.dv), cc = d3(d.dv, d.dv);
+      det = a * cc - bb * bb;
+    }
+    if (!(det > 0)) break;
+    double su = -(cc * gu - bb * gv) / det, sv = -(-bb * gu + a * gv) / det;
+    double step = 1, best = cur, nu = u, nv = v;
+    for (int k = 0; k < 8; ++k, step *= 0.5) {
+      double tu = std::clamp(u + step * su, b.u0, b.u1), tv = std::clamp(v + step * sv, b.v0, b.v1);
+      double dn = dist(tu, tv);
+      if (dn < best) {
+        best = dn, nu = tu, nv = tv;
+        break;
+      }
+    }
+    bool moved = std::abs(nu - u) + std::abs(nv - v) > tol;
+    u = nu, v = nv, cur = best;
+    if (!moved) break;  // converged, or no descent along the Newton direction
+  }
+  Foot ft;
+  ft.u = u, ft.v = v, ft.distance = cur;
+  ft.p = v3(s.face_point(f, u, v));
+  return ft;
+}
 
 // Radius = distance to the boundary: the minimum over the contact faces of the distance to the
 // face (projection inside the trimmed face), never above the empty-ball radius. Planar faces
@@ -121,6 +228,8 @@ long refine_radii(const cad::Shape& shape, MedialObject& M, int threads) {
   const int nf = shape.num_faces();
   std::vector<char> planar(nf);
   for (int f = 0; f < nf; ++f) planar[f] = shape.face_surface_type(f) == "plane";
+  std::vector<cad::UVBounds> bounds(nf);
+  for (int f = 0; f < nf; ++f) bounds[f] = shape.face_uv_bounds(f);
   const std::size_t np = M.points.size();
   threads = std::max(1, std::min(threads, static_cast<int>(np / 2000) + 1));
   std::vector<long> counts(threads, 0);
@@ -141,11 +250,11 @@ long refine_radii(const cad::Shape& shape, MedialObject& M, int threads) {
           any = true;
           continue;
         }
-        auto pr = mine.project_to_face(s.id, cv(p.c), cad::Vec2{s.u, s.v});
-        if (!std::isfinite(pr.distance)) continue;
-        double dq = std::hypot(pr.point.x - s.p[0], pr.point.y - s.p[1], pr.point.z - s.p[2]);
-        if (dq > 2 * s.h && !mine.face_contains_uv(s.id, pr.u, pr.v, 1e-7)) continue;
-        r = std::min(r, pr.distance);
+        Foot ft = newton_foot(mine, s.id, p.c, s.u, s.v, bounds[s.id]);
+        if (!std::isfinite(ft.distance)) continue;
+        double dq = std::hypot(ft.p[0] - s.p[0], ft.p[1] - s.p[1], ft.p[2] - s.p[2]);
+        if (dq > 2 * s.h && !mine.face_contains_uv(s.id, ft.u, ft.v, 1e-7)) continue;
+        r = std::min(r, ft.distance);
         any = true;
         ++counts[t];
       }
