@@ -543,7 +543,10 @@ nlohmann::json mesh_stats(const Mesh& m, int threads) {
   j["min_scaled_jacobian"] = mn;
   j["median_scaled_jacobian"] = med;
   j["max_aspect_ratio"] = total ? max_ar : 1.0;
-  j["validity_method"] = sampled ? "bezier (pyramids: sampling)" : "bezier";
+  j["validity_method"] = sampled ? "bezier; sampling for " + std::to_string(sampled) +
+                                       " elements (pyramids, or degrees too high for stable Bezier conversion)"
+                                 : std::string("bezier");
+  j["sampled"] = sampled;
   sj_edges.back() = 1.0;
   ar_edges.back() = 1e300;
   j["histograms"] = {{"scaled_jacobian", {{"edges", sj_edges}, {"counts", sj_counts}}},

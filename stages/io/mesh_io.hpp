@@ -1,0 +1,49 @@
+// meshflow mesh formats: Gmsh MSH 4.1 (ASCII and binary, read+write) and MSH 2.2 (ASCII,
+// read), VTU (XML, appended raw binary, VTK Lagrange cells; write+read), Nektar++ XML
+// (uncompressed; read+write).
+//
+// Every reader throws MeshIOError on bad input with a message naming the file and the line
+// (text) or byte offset (binary) and what is wrong: truncation, wrong magic/version, unknown
+// element type, node index out of range, non-finite coordinates, inconsistent counts.
+//
+// The "mesh" artifact (registered by stages/io) is stored as binary MSH 4.1, written
+// deterministically: a stage writes its mesh with
+//   meshflow::io::write_mesh(mesh, ctx.output("mesh", "mesh"));   // .msh binary
+//   ctx.stats()["mesh"] = meshflow::model::mesh_stats(mesh, ctx.threads());
+// and reads its input with meshflow::io::read_mesh(ctx.input("mesh").path).
+#pragma once
+
+#include "stages/model/mesh.hpp"
+
+#include <filesystem>
+#include <stdexcept>
+#include <string>
+
+namespace meshflow::io {
+
+struct MeshIOError : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+
+enum class MeshFormat { MshBinary, MshAscii, Vtu, Nektar };
+
+// By extension: .msh (any supported MSH version/encoding), .vtu, .xml. Without an extension
+// match (e.g. a file in the artifact store), the content decides ($MeshFormat, <VTKFile,
+// <NEKTAR).
+model::Mesh read_mesh(const std::filesystem::path& path);
+// By extension (.msh: binary MSH 4.1; .vtu; .xml) unless `format` is given.
+void write_mesh(const model::Mesh& m, const std::filesystem::path& path);
+void write_mesh(const model::Mesh& m, const std::filesystem::path& path, MeshFormat format);
+
+model::Mesh read_msh(const std::filesystem::path& path);
+void write_msh(const model::Mesh& m, const std::filesystem::path& path, bool binary = true);
+model::Mesh read_vtu(const std::filesystem::path& path);
+void write_vtu(const model::Mesh& m, const std::filesystem::path& path);
+model::Mesh read_nektar(const std::filesystem::path& path);
+void write_nektar(const model::Mesh& m, const std::filesystem::path& path);
+
+// Classifies unclassified nodes on the lowest-dimensional entity whose elements use them
+// (as Gmsh does), so that every node belongs to an entity block of MSH 4.1.
+void classify_nodes(model::Mesh& m);
+
+}  // namespace meshflow::io

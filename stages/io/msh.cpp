@@ -1,0 +1,608 @@
+// Gmsh MSH 4.1 (ASCII, binary) reader and writer, MSH 2.2 ASCII reader. Format reference:
+// the Gmsh reference manual, section "MSH file format". Written by hand because no
+// maintained C++ library reads and writes MSH 4.1 with entities, parametric nodes and
+// periodic links without pulling in all of Gmsh.
+#include "stages/io/mesh_io.hpp"
+#include "stages/io/reader.hpp"
+
+#include <algorithm>
+#include <charconv>
+#include <cmath>
+#include <fstream>
+#include <map>
+#include <set>
+#include <tuple>
+
+namespace meshflow::io {
+
+using namespace model;
+using detail::Cursor;
+
+namespace {
+
+// Node tag -> index lookup (dense when tags are compact, sorted otherwise).
+struct TagIndex {
+  std::vector<std::uint32_t> dense;
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> sparse;
+  bool use_dense = true;
+  static constexpr std::uint32_t kNone = 0xffffffffu;
+  void build(const std::vector<std::uint64_t>& tags, std::uint64_t max_tag) {
+    use_dense = max_tag <= 4 * tags.size() + 1024;
+    if (use_dense) {
+      dense.assign(max_tag + 1, kNone);
+      for (std::uint32_t i = 0; i < tags.size(); ++i) dense[tags[i]] = i;
+    } else {
+      for (std::uint32_t i = 0; i < tags.size(); ++i) sparse.push_back({tags[i], i});
+      std::sort(sparse.begin(), sparse.end());
+    }
+  }
+  std::uint32_t find(std::uint64_t t) const {
+    if (use_dense) return t < dense.size() ? dense[t] : kNone;
+    auto it = std::lower_bound(sparse.begin(), sparse.end(), std::make_pair(t, std::uint32_t(0)));
+    return it != sparse.end() && it->first == t ? it->second : kNone;
+  }
+};
+
+void finish_tags(Mesh& m, std::vector<std::uint64_t>& node_tags) {
+  bool trivial = true;
+  for (size_t i = 0; i < node_tags.size() && trivial; ++i) trivial = node_tags[i] == i + 1;
+  if (!trivial) m.node_tags = node_tags;
+  std::uint64_t next = 1;
+  bool etrivial = true;
+  for (auto& b : m.blocks)
+    for (auto t : b.tags) etrivial = etrivial && t == next++;
+  if (etrivial)
+    for (auto& b : m.blocks) b.tags.clear();
+}
+
+Mesh read_msh4(Cursor& c, bool binary, const std::string& path) {
+  Mesh m;
+  auto I = [&](const char* what) -> long long { return binary ? c.bin<int>(what) : c.integer<long long>(what); };
+  auto S = [&](const char* what) -> std::uint64_t {
+    if (binary) return c.bin<std::uint64_t>(what);
+    long long v = c.integer<long long>(what);
+    if (v < 0) c.fail(std::string("negative value for ") + what);
+    return static_cast<std::uint64_t>(v);
+  };
+  auto D = [&](const char* what) -> double { return binary ? c.bin<double>(what) : c.real(what); };
+  std::vector<std::uint64_t> node_tags;
+  TagIndex index;
+  bool have_nodes = false;
+  while (true) {
+    c.skip_ws();
+    if (c.eof()) break;
+    size_t at = c.pos();
+    std::string head = c.line();
+    if (head.empty() || head[0] != '$') c.fail("expected a section ($Name), found '" + head.substr(0, 40) + "'", false, at);
+    std::string name = head.substr(1);
+    if (name == "PhysicalNames") {
+      long long n = c.integer<long long>("number of physical names");
+      for (long long i = 0; i < n; ++i) {
+        int dim = c.integer<int>("physical dimension");
+        int tag = c.integer<int>("physical tag");
+        c.skip_ws();
+        size_t lat = c.pos();
+        std::string rest = c.line();
+        auto q1 = rest.find('"'), q2 = rest.rfind('"');
+        if (q1 == std::string::npos || q2 == q1) c.fail("physical name must be quoted", false, lat);
+        m.add_physical(dim, tag, rest.substr(q1 + 1, q2 - q1 - 1));
+      }
+      c.expect("$EndPhysicalNames");
+    } else if (name == "Entities") {
+      std::uint64_t n[4];
+      for (int d = 0; d < 4; ++d) n[d] = S("number of entities");
+      for (int d = 0; d < 4; ++d)
+        for (std::uint64_t i = 0; i < n[d]; ++i) {
+          Entity e;
+          e.dim = d;
+          e.tag = static_cast<int>(I("entity tag"));
+          if (d == 0) {
+            for (int k = 0; k < 3; ++k) e.bbox[k] = e.bbox[k + 3] = D("point coordinate");
+          } else {
+            for (int k = 0; k < 6; ++k) e.bbox[k] = D("bounding box");
+          }
+          std::uint64_t np = S("number of physical tags");
+          if (np > 1000000) c.fail("implausible number of physical tags", binary);
+          for (std::uint64_t k = 0; k < np; ++k) e.physicals.push_back(static_cast<int>(I("physical tag")));
+          if (d > 0) {
+            std::uint64_t nb = S("number of bounding entities");
+            if (nb > 100000000) c.fail("implausible number of bounding entities", binary);
+            for (std::uint64_t k = 0; k < nb; ++k) e.boundary.push_back(static_cast<int>(I("bounding entity")));
+          }
+          m.entities.push_back(std::move(e));
+        }
+      c.expect("$EndEntities");
+    } else if (name == "Nodes") {
+      std::uint64_t nblocks = S("number of node blocks"), nnodes = S("number of nodes");
+      S("min node tag");
+      std::uint64_t maxtag = S("max node tag");
+      if (nnodes > (1ull << 32) - 2) c.fail("too many nodes", binary);
+      const size_t reserve = std::min<std::uint64_t>(nnodes, c.data().size() / 8 + 1);
+      m.x.reserve(reserve), m.y.reserve(reserve), m.z.reserve(reserve);
+      node_tags.reserve(reserve);
+      bool any_param = false;
+      for (std::uint64_t b = 0; b < nblocks; ++b) {
+        int dim = static_cast<int>(I("entity dimension"));
+        int tag = static_cast<int>(I("entity tag"));
+        int param = static_cast<int>(I("parametric flag"));
+        std::uint64_t n = S("number of nodes in block");
+        if (dim < 0 || dim > 3) c.fail("entity dimension " + std::to_string(dim) + " is not 0..3", binary);
+        if (node_tags.size() + n > nnodes)
+          c.fail("inconsistent counts: the node blocks hold more nodes than the " + std::to_string(nnodes) +
+                     " declared in the $Nodes header", binary);
+        size_t first = node_tags.size();
+        for (std::uint64_t i = 0; i < n; ++i) node_tags.push_back(S("node tag"));
+        const int npar = param ? dim : 0;
+        if (param && !any_param) {
+          any_param = true;
+          m.node_u.assign(first, NAN);
+          m.node_v.assign(first, NAN);
+        }
+        for (std::uint64_t i = 0; i < n; ++i) {
+          size_t at = c.pos();
+          double p[6] = {0, 0, 0, NAN, NAN, NAN};
+          for (int k = 0; k < 3 + npar; ++k) p[k] = D("node coordinate");
+          if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2]))
+            c.fail("node " + std::to_string(node_tags[first + i]) + " has a non-finite coordinate", binary, at);
+          m.x.push_back(p[0]), m.y.push_back(p[1]), m.z.push_back(p[2]);
+          if (any_param) {
+            m.node_u.push_back(npar >= 1 && dim <= 2 ? p[3] : NAN);
+            m.node_v.push_back(npar >= 2 && dim <= 2 ? p[4] : NAN);
+          }
+          m.node_entity_dim.push_back(dim);
+          m.node_entity_tag.push_back(tag);
+        }
+      }
+      if (node_tags.size() != nnodes)
+        c.fail("inconsistent counts: $Nodes header declares " + std::to_string(nnodes) + " nodes, blocks hold " +
+               std::to_string(node_tags.size()), binary);
+      index.build(node_tags, std::max<std::uint64_t>(maxtag, node_tags.empty() ? 0 : *std::max_element(node_tags.begin(), node_tags.end())));
+      for (size_t i = 0; i < node_tags.size(); ++i)
+        if (index.find(node_tags[i]) != i) c.fail("duplicate node tag " + std::to_string(node_tags[i]), binary);
+      have_nodes = true;
+      c.expect("$EndNodes");
+    } else if (name == "Elements") {
+      if (!have_nodes) c.fail("$Elements before $Nodes", false, at);
+      std::uint64_t nblocks = S("number of element blocks"), nelem = S("number of elements");
+      S("min element tag");
+      S("max element tag");
+      std::uint64_t total = 0;
+      for (std::uint64_t b = 0; b < nblocks; ++b) {
+        int dim = static_cast<int>(I("entity dimension"));
+        int tag = static_cast<int>(I("entity tag"));
+        size_t tat = c.pos();
+        int type = static_cast<int>(I("element type"));
+        std::uint64_t n = S("number of elements in block");
+        Shape s;
+        int order;
+        if (!from_gmsh_type(type, s, order))
+          c.fail("unknown or unsupported element type " + std::to_string(type) +
+                     " (supported: complete Lagrange points, lines, triangles, quadrangles, tetrahedra, prisms, "
+                     "pyramids, hexahedra of order 1-6)", binary, tat);
+        if (total + n > nelem)
+          c.fail("inconsistent counts: element blocks hold more than the " + std::to_string(nelem) + " declared", binary);
+        total += n;
+        ElementBlock blk;
+        blk.shape = s, blk.order = order, blk.entity_dim = dim, blk.entity_tag = tag;
+        const int npe = blk.nodes_per_element();
+        if (n > c.data().size()) c.fail("implausible element count " + std::to_string(n) + " (truncated file?)", binary);
+        blk.nodes.reserve(n * npe);
+        blk.tags.reserve(n);
+        for (std::uint64_t e = 0; e < n; ++e) {
+          blk.tags.push_back(S("element tag"));
+          for (int k = 0; k < npe; ++k) {
+            size_t nat = c.pos();
+            std::uint64_t t = S("element node tag");
+            std::uint32_t idx = index.find(t);
+            if (idx == TagIndex::kNone)
+              c.fail("element " + std::to_string(blk.tags.back()) + " refers to node " + std::to_string(t) +
+                         ", which is not in $Nodes (node index out of range)", binary, nat);
+            blk.nodes.push_back(idx);
+          }
+        }
+        m.blocks.push_back(std::move(blk));
+      }
+      if (total != nelem)
+        c.fail("inconsistent counts: $Elements header declares " + std::to_string(nelem) + " elements, blocks hold " +
+               std::to_string(total), binary);
+      c.expect("$EndElements");
+    } else if (name == "Periodic") {
+      if (!have_nodes) c.fail("$Periodic before $Nodes", false, at);
+      std::uint64_t n = S("number of periodic links");
+      for (std::uint64_t l = 0; l < n; ++l) {
+        PeriodicLink pl;
+        pl.dim = static_cast<int>(I("entity dimension"));
+        pl.tag = static_cast<int>(I("entity tag"));
+        pl.master_tag = static_cast<int>(I("master entity tag"));
+        std::uint64_t na = S("number of affine values");
+        if (na != 0 && na != 16) c.fail("periodic affine transform must have 0 or 16 values", binary);
+        for (std::uint64_t k = 0; k < na; ++k) pl.affine.push_back(D("affine value"));
+        std::uint64_t nn = S("number of periodic nodes");
+        if (nn > c.data().size()) c.fail("implausible periodic node count (truncated file?)", binary);
+        for (std::uint64_t k = 0; k < nn; ++k) {
+          std::uint64_t a = S("periodic node"), b = S("periodic master node");
+          std::uint32_t ia = index.find(a), ib = index.find(b);
+          if (ia == TagIndex::kNone || ib == TagIndex::kNone) c.fail("periodic link refers to a node not in $Nodes", binary);
+          pl.nodes.push_back({ia, ib});
+        }
+        m.periodic.push_back(std::move(pl));
+      }
+      c.expect("$EndPeriodic");
+    } else if (name == "PartitionedEntities" || name == "GhostElements") {
+      c.fail("partitioned meshes are not supported (section $" + name + ")", false, at);
+    } else {  // skip unknown sections ($NodeData, $Comments, ...)
+      std::string end = "\n$End" + name;
+      size_t e = c.data().find(end, c.pos());
+      if (e == std::string::npos) c.fail("section $" + name + " has no $End" + name + " (truncated file?)", false, at);
+      c.seek(e + end.size());
+    }
+  }
+  if (!have_nodes) throw MeshIOError(path + ": no $Nodes section");
+  finish_tags(m, node_tags);
+  return m;
+}
+
+Mesh read_msh2(Cursor& c, const std::string& path) {
+  Mesh m;
+  std::vector<std::uint64_t> node_tags;
+  TagIndex index;
+  bool have_nodes = false;
+  std::map<std::tuple<int, int, int, int>, size_t> block_of;  // (dim, entity, shape, order)
+  std::map<std::pair<int, int>, std::set<int>> entity_phys;
+  while (true) {
+    c.skip_ws();
+    if (c.eof()) break;
+    size_t at = c.pos();
+    std::string head = c.line();
+    if (head.empty() || head[0] != '$') c.fail("expected a section ($Name), found '" + head.substr(0, 40) + "'", false, at);
+    std::string name = head.substr(1);
+    if (name == "PhysicalNames") {
+      long long n = c.integer<long long>("number of physical names");
+      for (long long i = 0; i < n; ++i) {
+        int dim = c.integer<int>("physical dimension");
+        int tag = c.integer<int>("physical tag");
+        c.skip_ws();
+        size_t lat = c.pos();
+        std::string rest = c.line();
+        auto q1 = rest.find('"'), q2 = rest.rfind('"');
+        if (q1 == std::string::npos || q2 == q1) c.fail("physical name must be quoted", false, lat);
+        m.add_physical(dim, tag, rest.substr(q1 + 1, q2 - q1 - 1));
+      }
+      c.expect("$EndPhysicalNames");
+    } else if (name == "Nodes") {
+      long long n = c.integer<long long>("number of nodes");
+      if (n < 0 || n > (long long)c.data().size()) c.fail("implausible node count " + std::to_string(n));
+      std::uint64_t maxtag = 0;
+      for (long long i = 0; i < n; ++i) {
+        size_t nat = (c.skip_ws(), c.pos());
+        std::uint64_t t = c.integer<std::uint64_t>("node tag");
+        double p[3];
+        for (double& v : p) v = c.real("node coordinate");
+        if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2]))
+          c.fail("node " + std::to_string(t) + " has a non-finite coordinate", false, nat);
+        node_tags.push_back(t);
+        maxtag = std::max(maxtag, t);
+        m.x.push_back(p[0]), m.y.push_back(p[1]), m.z.push_back(p[2]);
+      }
+      index.build(node_tags, maxtag);
+      for (size_t i = 0; i < node_tags.size(); ++i)
+        if (index.find(node_tags[i]) != i) c.fail("duplicate node tag " + std::to_string(node_tags[i]));
+      have_nodes = true;
+      c.expect("$EndNodes");
+    } else if (name == "Elements") {
+      if (!have_nodes) c.fail("$Elements before $Nodes", false, at);
+      long long n = c.integer<long long>("number of elements");
+      if (n < 0 || n > (long long)c.data().size()) c.fail("implausible element count " + std::to_string(n));
+      for (long long i = 0; i < n; ++i) {
+        std::uint64_t tag = c.integer<std::uint64_t>("element tag");
+        size_t tat = (c.skip_ws(), c.pos());
+        int type = c.integer<int>("element type");
+        int ntags = c.integer<int>("number of element tags");
+        std::vector<int> tags(std::max(ntags, 0));
+        for (int& t : tags) t = c.integer<int>("element tag value");
+        Shape s;
+        int order;
+        if (!from_gmsh_type(type, s, order))
+          c.fail("unknown or unsupported element type " + std::to_string(type), false, tat);
+        int phys = ntags > 0 ? tags[0] : 0, ent = ntags > 1 ? tags[1] : 0;
+        int dim = dimension(s);
+        auto key = std::make_tuple(dim, ent, (int)s, order);
+        auto it = block_of.find(key);
+        if (it == block_of.end()) {
+          it = block_of.emplace(key, m.blocks.size()).first;
+          ElementBlock b;
+          b.shape = s, b.order = order, b.entity_dim = dim, b.entity_tag = ent;
+          m.blocks.push_back(std::move(b));
+        }
+        auto& b = m.blocks[it->second];
+        b.tags.push_back(tag);
+        for (int k = 0; k < b.nodes_per_element(); ++k) {
+          size_t nat = (c.skip_ws(), c.pos());
+          std::uint64_t t = c.integer<std::uint64_t>("element node tag");
+          std::uint32_t idx = index.find(t);
+          if (idx == TagIndex::kNone)
+            c.fail("element " + std::to_string(tag) + " refers to node " + std::to_string(t) +
+                       ", which is not in $Nodes (node index out of range)", false, nat);
+          b.nodes.push_back(idx);
+        }
+        if (phys) entity_phys[{dim, ent}].insert(phys);
+        else entity_phys[{dim, ent}];
+      }
+      c.expect("$EndElements");
+    } else {
+      std::string end = "\n$End" + name;
+      size_t e = c.data().find(end, c.pos());
+      if (e == std::string::npos) c.fail("section $" + name + " has no $End" + name + " (truncated file?)", false, at);
+      c.seek(e + end.size());
+    }
+  }
+  if (!have_nodes) throw MeshIOError(path + ": no $Nodes section");
+  for (auto& [k, ph] : entity_phys) m.add_entity(k.first, k.second, std::vector<int>(ph.begin(), ph.end()));
+  // MSH 2.2 blocks are in order of first appearance; Gmsh's element order is kept per block
+  std::uint64_t next = 1;
+  bool etrivial = true;
+  for (auto& b : m.blocks)
+    for (auto t : b.tags) etrivial = etrivial && t == next++;
+  (void)etrivial;
+  finish_tags(m, node_tags);
+  return m;
+}
+
+// ---- writing ----
+struct Out {
+  std::string s;
+  bool binary;
+  void raw(const void* p, size_t n) { s.append(static_cast<const char*>(p), n); }
+  void txt(std::string_view t) { s.append(t); }
+  void i(int v) {
+    if (binary) raw(&v, 4);
+    else num(v), s += ' ';
+  }
+  void z(std::uint64_t v) {
+    if (binary) raw(&v, 8);
+    else num(v), s += ' ';
+  }
+  void d(double v) {
+    if (binary) raw(&v, 8);
+    else {
+      char buf[32];
+      auto r = std::to_chars(buf, buf + sizeof buf, v);
+      s.append(buf, r.ptr);
+      s += ' ';
+    }
+  }
+  template <class T>
+  void num(T v) {
+    char buf[32];
+    auto r = std::to_chars(buf, buf + sizeof buf, v);
+    s.append(buf, r.ptr);
+  }
+  void nl() {
+    if (!binary) {
+      if (!s.empty() && s.back() == ' ') s.back() = '\n';
+      else s += '\n';
+    }
+  }
+};
+
+}  // namespace
+
+void classify_nodes(Mesh& m) {
+  const size_t n = m.num_nodes();
+  if (m.node_entity_dim.size() != n) {
+    m.node_entity_dim.assign(n, -1);
+    m.node_entity_tag.assign(n, -1);
+  }
+  for (int d = 0; d <= 3; ++d)
+    for (auto& b : m.blocks) {
+      if (dimension(b.shape) != d) continue;
+      for (auto idx : b.nodes)
+        if (m.node_entity_dim[idx] < 0) {
+          m.node_entity_dim[idx] = b.entity_dim;
+          m.node_entity_tag[idx] = b.entity_tag;
+        }
+    }
+  // nodes used by no element: the highest-dimensional entity (or a new volume entity)
+  int fd = -1, ft = -1;
+  for (auto& e : m.entities)
+    if (e.dim > fd) fd = e.dim, ft = e.tag;
+  for (auto& b : m.blocks)
+    if (b.entity_dim > fd) fd = b.entity_dim, ft = b.entity_tag;
+  if (fd < 0) fd = 3, ft = 1;
+  for (size_t i = 0; i < n; ++i)
+    if (m.node_entity_dim[i] < 0) m.node_entity_dim[i] = fd, m.node_entity_tag[i] = ft;
+}
+
+Mesh read_msh(const std::filesystem::path& path) {
+  const std::string data = detail::slurp(path);
+  Cursor c(path.string(), data);
+  c.skip_ws();
+  if (c.eof()) c.fail("empty file (not a Gmsh MSH file)");
+  std::string head = c.line();
+  if (head != "$MeshFormat") c.fail("not a Gmsh MSH file: the first line is not $MeshFormat", false, 0);
+  size_t vat = (c.skip_ws(), c.pos());
+  std::string version(c.token("MSH version"));
+  int ftype = c.integer<int>("file type");
+  int dsize = c.integer<int>("data size");
+  if (version != "4.1" && version != "2.2" && version != "2.0" && version != "2.1")
+    c.fail("unsupported MSH version " + version + " (supported: 4.1 ASCII/binary, 2.2 ASCII)", false, vat);
+  if (ftype != 0 && ftype != 1) c.fail("file type must be 0 (ASCII) or 1 (binary)", false, vat);
+  if (dsize != 8) c.fail("data size " + std::to_string(dsize) + " is not supported (must be 8)", false, vat);
+  c.line();
+  bool binary = ftype == 1;
+  if (binary) {
+    if (version != "4.1") c.fail("binary MSH " + version + " is not supported (only binary 4.1)", false, vat);
+    int one = c.bin<int>("endianness marker");
+    if (one != 1) c.fail("binary MSH with foreign endianness (marker " + std::to_string(one) + ")", true, c.pos() - 4);
+  }
+  c.expect("$EndMeshFormat");
+  c.line();
+  Mesh m = version == "4.1" ? read_msh4(c, binary, path.string()) : read_msh2(c, path.string());
+  try {
+    m.check();
+  } catch (const std::invalid_argument& e) {
+    throw MeshIOError(path.string() + ": " + e.what());
+  }
+  return m;
+}
+
+void write_msh(const Mesh& in, const std::filesystem::path& path, bool binary) {
+  in.check();
+  Mesh m_copy;
+  const Mesh* mp = &in;
+  bool need_classify = in.node_entity_dim.size() != in.num_nodes();
+  if (!need_classify)
+    for (int d : in.node_entity_dim)
+      if (d < 0) need_classify = true;
+  if (need_classify) {
+    m_copy = in;
+    classify_nodes(m_copy);
+    mp = &m_copy;
+  }
+  const Mesh& m = *mp;
+  const size_t n = m.num_nodes();
+
+  // entities: declared ones plus any referenced by blocks or nodes, sorted by (dim, tag)
+  std::map<std::pair<int, int>, Entity> ents;
+  for (auto& e : m.entities) ents[{e.dim, e.tag}] = e;
+  for (auto& b : m.blocks) {
+    auto& e = ents[{b.entity_dim, b.entity_tag}];
+    e.dim = b.entity_dim, e.tag = b.entity_tag;
+  }
+  for (size_t i = 0; i < n; ++i) {
+    auto& e = ents[{m.node_entity_dim[i], m.node_entity_tag[i]}];
+    e.dim = m.node_entity_dim[i], e.tag = m.node_entity_tag[i];
+  }
+  // bounding boxes missing: from the nodes of the entity's elements and its own nodes
+  std::map<std::pair<int, int>, std::array<double, 6>> bb;
+  auto grow = [&](std::pair<int, int> k, std::uint32_t i) {
+    auto it = bb.find(k);
+    if (it == bb.end()) it = bb.emplace(k, std::array<double, 6>{m.x[i], m.y[i], m.z[i], m.x[i], m.y[i], m.z[i]}).first;
+    auto& a = it->second;
+    const double p[3] = {m.x[i], m.y[i], m.z[i]};
+    for (int r = 0; r < 3; ++r) a[r] = std::min(a[r], p[r]), a[3 + r] = std::max(a[3 + r], p[r]);
+  };
+  for (auto& b : m.blocks)
+    for (auto i : b.nodes) grow({b.entity_dim, b.entity_tag}, i);
+  for (size_t i = 0; i < n; ++i) grow({m.node_entity_dim[i], m.node_entity_tag[i]}, (std::uint32_t)i);
+  for (auto& [k, e] : ents)
+    if (!std::isfinite(e.bbox[0])) {
+      auto it = bb.find(k);
+      for (int r = 0; r < 6; ++r) e.bbox[r] = it != bb.end() ? it->second[r] : 0.0;
+    }
+
+  Out o{{}, binary};
+  o.s.reserve(n * 40 + m.num_elements() * 8 * 12 + 4096);
+  o.txt(binary ? "$MeshFormat\n4.1 1 8\n" : "$MeshFormat\n4.1 0 8\n");
+  if (binary) {
+    int one = 1;
+    o.raw(&one, 4);
+    o.txt("\n");
+  }
+  o.txt("$EndMeshFormat\n");
+  if (!m.physicals.empty()) {
+    auto ph = m.physicals;
+    std::sort(ph.begin(), ph.end(), [](auto& a, auto& b) { return std::tie(a.dim, a.tag) < std::tie(b.dim, b.tag); });
+    o.txt("$PhysicalNames\n" + std::to_string(ph.size()) + "\n");
+    for (auto& p : ph) o.txt(std::to_string(p.dim) + " " + std::to_string(p.tag) + " \"" + p.name + "\"\n");
+    o.txt("$EndPhysicalNames\n");
+  }
+  o.txt("$Entities\n");
+  std::uint64_t cnt[4] = {0, 0, 0, 0};
+  for (auto& [k, e] : ents) cnt[k.first]++;
+  for (int d = 0; d < 4; ++d) o.z(cnt[d]);
+  o.nl();
+  for (auto& [k, e] : ents) {
+    o.i(e.tag);
+    for (int r = 0; r < (e.dim == 0 ? 3 : 6); ++r) o.d(e.bbox[r]);
+    o.z(e.physicals.size());
+    for (int p : e.physicals) o.i(p);
+    if (e.dim > 0) {
+      o.z(e.boundary.size());
+      for (int b : e.boundary) o.i(b);
+    }
+    o.nl();
+  }
+  o.txt(binary ? "\n$EndEntities\n" : "$EndEntities\n");
+
+  // nodes grouped by entity
+  std::map<std::pair<int, int>, std::vector<std::uint32_t>> groups;
+  for (size_t i = 0; i < n; ++i) groups[{m.node_entity_dim[i], m.node_entity_tag[i]}].push_back((std::uint32_t)i);
+  std::uint64_t tmin = n ? ~0ull : 0, tmax = 0;
+  for (size_t i = 0; i < n; ++i) tmin = std::min(tmin, m.node_tag(i)), tmax = std::max(tmax, m.node_tag(i));
+  o.txt("$Nodes\n");
+  o.z(groups.size()), o.z(n), o.z(tmin), o.z(tmax);
+  o.nl();
+  for (auto& [k, idx] : groups) {
+    const int dim = k.first;
+    bool param = m.has_parametric() && (dim == 1 || dim == 2);
+    for (auto i : idx)
+      if (param && (!std::isfinite(m.node_u[i]) || (dim == 2 && !std::isfinite(m.node_v[i])))) param = false;
+    o.i(dim), o.i(k.second), o.i(param ? 1 : 0), o.z(idx.size());
+    o.nl();
+    for (auto i : idx) o.z(m.node_tag(i)), o.nl();
+    for (auto i : idx) {
+      o.d(m.x[i]), o.d(m.y[i]), o.d(m.z[i]);
+      if (param) {
+        o.d(m.node_u[i]);
+        if (dim == 2) o.d(m.node_v[i]);
+      }
+      o.nl();
+    }
+  }
+  o.txt(binary ? "\n$EndNodes\n" : "$EndNodes\n");
+
+  bool all_tagged = !m.blocks.empty();
+  for (auto& b : m.blocks) all_tagged = all_tagged && b.tags.size() == b.size();
+  std::uint64_t ne = m.num_elements(), emin = ne ? ~0ull : 0, emax = 0, next = 1;
+  for (auto& b : m.blocks)
+    for (size_t e = 0; e < b.size(); ++e) {
+      std::uint64_t t = all_tagged ? b.tags[e] : next++;
+      emin = std::min(emin, t), emax = std::max(emax, t);
+    }
+  size_t nonempty = 0;
+  for (auto& b : m.blocks) nonempty += b.size() > 0;
+  o.txt("$Elements\n");
+  o.z(nonempty), o.z(ne), o.z(emin), o.z(emax);
+  o.nl();
+  next = 1;
+  for (auto& b : m.blocks) {
+    if (!b.size()) continue;
+    const int type = gmsh_type(b.shape, b.order);
+    if (!type)
+      throw MeshIOError(path.string() + ": MSH has no element type for a " + shape_name(b.shape) + " of order " +
+                        std::to_string(b.order));
+    o.i(b.entity_dim), o.i(b.entity_tag), o.i(type), o.z(b.size());
+    o.nl();
+    const int npe = b.nodes_per_element();
+    for (size_t e = 0; e < b.size(); ++e) {
+      o.z(all_tagged ? b.tags[e] : next++);
+      const std::uint32_t* nd = b.element(e);
+      for (int k = 0; k < npe; ++k) o.z(m.node_tag(nd[k]));
+      o.nl();
+    }
+  }
+  o.txt(binary ? "\n$EndElements\n" : "$EndElements\n");
+  if (!m.periodic.empty()) {
+    o.txt("$Periodic\n");
+    o.z(m.periodic.size());
+    o.nl();
+    for (auto& l : m.periodic) {
+      o.i(l.dim), o.i(l.tag), o.i(l.master_tag);
+      o.nl();
+      o.z(l.affine.size());
+      for (double a : l.affine) o.d(a);
+      o.nl();
+      o.z(l.nodes.size());
+      o.nl();
+      for (auto [a, b] : l.nodes) o.z(m.node_tag(a)), o.z(m.node_tag(b)), o.nl();
+    }
+    o.txt(binary ? "\n$EndPeriodic\n" : "$EndPeriodic\n");
+  }
+  std::ofstream f(path, std::ios::binary);
+  if (!f) throw MeshIOError(path.string() + ": cannot open the file for writing");
+  f.write(o.s.data(), static_cast<std::streamsize>(o.s.size()));
+  if (!f) throw MeshIOError(path.string() + ": write failed (disk full?)");
+}
+
+}  // namespace meshflow::io

@@ -1,0 +1,101 @@
+// Internal: a bounds-checked cursor over a whole file in memory, for text and binary data.
+// Errors name the file and the line (text) or the byte offset (binary).
+#pragma once
+
+#include "stages/io/mesh_io.hpp"
+
+#include <algorithm>
+#include <charconv>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <string_view>
+
+namespace meshflow::io::detail {
+
+inline std::string slurp(const std::filesystem::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  if (!in) throw MeshIOError(p.string() + ": cannot open the file for reading");
+  std::ostringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+class Cursor {
+ public:
+  Cursor(std::string path, const std::string& data) : path_(std::move(path)), d_(data) {}
+  size_t pos() const { return pos_; }
+  void seek(size_t p) { pos_ = p; }
+  bool eof() const { return pos_ >= d_.size(); }
+  const std::string& data() const { return d_; }
+
+  size_t line_at(size_t p) const { return 1 + std::count(d_.begin(), d_.begin() + std::min(p, d_.size()), '\n'); }
+  [[noreturn]] void fail(const std::string& what, bool binary = false, size_t at = std::string::npos) const {
+    size_t p = at == std::string::npos ? pos_ : at;
+    std::string where = binary ? "byte offset " + std::to_string(p) : "line " + std::to_string(line_at(p));
+    throw MeshIOError(path_ + ":" + where + ": " + what);
+  }
+  void skip_ws() {
+    while (pos_ < d_.size() && (d_[pos_] == ' ' || d_[pos_] == '\t' || d_[pos_] == '\n' || d_[pos_] == '\r')) ++pos_;
+  }
+  std::string_view token(const char* what) {
+    skip_ws();
+    if (pos_ >= d_.size()) fail(std::string("unexpected end of file while reading ") + what + " (truncated file?)");
+    size_t b = pos_;
+    while (pos_ < d_.size() && !std::isspace(static_cast<unsigned char>(d_[pos_]))) ++pos_;
+    return std::string_view(d_).substr(b, pos_ - b);
+  }
+  template <class T>
+  T integer(const char* what) {
+    size_t at = (skip_ws(), pos_);
+    auto t = token(what);
+    T v{};
+    auto r = std::from_chars(t.data(), t.data() + t.size(), v);
+    if (r.ec != std::errc() || r.ptr != t.data() + t.size())
+      fail(std::string("expected an integer for ") + what + ", found '" + std::string(t.substr(0, 40)) + "'", false, at);
+    return v;
+  }
+  double real(const char* what) {
+    size_t at = (skip_ws(), pos_);
+    auto t = token(what);
+    double v = 0;
+    auto r = std::from_chars(t.data(), t.data() + t.size(), v);
+    if (r.ec == std::errc::result_out_of_range) v = HUGE_VAL;
+    else if (r.ec != std::errc() || r.ptr != t.data() + t.size())
+      fail(std::string("expected a number for ") + what + ", found '" + std::string(t.substr(0, 40)) + "'", false, at);
+    return v;
+  }
+  std::string line() {  // rest of the current line
+    size_t b = pos_;
+    while (pos_ < d_.size() && d_[pos_] != '\n') ++pos_;
+    std::string s = d_.substr(b, pos_ - b);
+    if (pos_ < d_.size()) ++pos_;
+    if (!s.empty() && s.back() == '\r') s.pop_back();
+    return s;
+  }
+  template <class T>
+  T bin(const char* what) {
+    if (pos_ + sizeof(T) > d_.size())
+      fail(std::string("unexpected end of file while reading ") + what + " (truncated file?)", true);
+    T v;
+    std::memcpy(&v, d_.data() + pos_, sizeof(T));
+    pos_ += sizeof(T);
+    return v;
+  }
+  void expect(std::string_view word) {
+    size_t at = (skip_ws(), pos_);
+    if (pos_ >= d_.size()) fail("unexpected end of file, expected '" + std::string(word) + "' (truncated file?)");
+    auto t = token("section end");
+    if (t != word) fail("expected '" + std::string(word) + "', found '" + std::string(t.substr(0, 40)) + "'", false, at);
+  }
+
+ private:
+  std::string path_;
+  const std::string& d_;
+  size_t pos_ = 0;
+};
+
+}  // namespace meshflow::io::detail

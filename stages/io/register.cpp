@@ -1,0 +1,158 @@
+// stages/io's registrations with the engine: the "mesh" artifact type (stored as binary MSH
+// 4.1; formats msh, msh-ascii, vtu, nektar; summary = mesh_stats) and the commands
+// `meshflow quality FILE [--json] [--threads N]` and `meshflow convert IN OUT [--ascii]`.
+#include "engine/artifact_type.hpp"
+#include "engine/command.hpp"
+#include "stages/io/mesh_io.hpp"
+#include "stages/model/quality.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <cstdio>
+#include <fstream>
+#include <iostream>
+
+namespace meshflow::io {
+
+namespace {
+std::string ext_of(const std::filesystem::path& p) {
+  std::string e = p.extension().string();
+  for (auto& c : e) c = (char)std::tolower((unsigned char)c);
+  return e;
+}
+std::string sniff(const std::filesystem::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  char buf[512] = {0};
+  in.read(buf, sizeof buf - 1);
+  std::string s(buf, (size_t)in.gcount());
+  if (s.rfind("$MeshFormat", 0) == 0) return ".msh";
+  if (s.find("<VTKFile") != std::string::npos) return ".vtu";
+  if (s.find("<NEKTAR") != std::string::npos) return ".xml";
+  return {};
+}
+}  // namespace
+
+model::Mesh read_mesh(const std::filesystem::path& path) {
+  if (!std::filesystem::exists(path)) throw MeshIOError(path.string() + ": no such file");
+  std::string e = ext_of(path);
+  if (e != ".msh" && e != ".vtu" && e != ".xml") e = sniff(path);
+  if (e == ".msh") return read_msh(path);
+  if (e == ".vtu") return read_vtu(path);
+  if (e == ".xml") return read_nektar(path);
+  throw MeshIOError(path.string() + ": unknown mesh format (expected .msh, .vtu or Nektar++ .xml)");
+}
+
+void write_mesh(const model::Mesh& m, const std::filesystem::path& path, MeshFormat f) {
+  switch (f) {
+    case MeshFormat::MshBinary: return write_msh(m, path, true);
+    case MeshFormat::MshAscii: return write_msh(m, path, false);
+    case MeshFormat::Vtu: return write_vtu(m, path);
+    case MeshFormat::Nektar: return write_nektar(m, path);
+  }
+}
+
+void write_mesh(const model::Mesh& m, const std::filesystem::path& path) {
+  std::string e = ext_of(path);
+  if (e == ".msh") return write_msh(m, path, true);
+  if (e == ".vtu") return write_vtu(m, path);
+  if (e == ".xml") return write_nektar(m, path);
+  throw MeshIOError(path.string() + ": unknown mesh format for writing (use .msh, .vtu or .xml)");
+}
+
+namespace {
+
+int quality_cmd(const std::vector<std::string>& args) {
+  std::string file;
+  bool json = false;
+  int threads = 0;
+  for (size_t i = 0; i < args.size(); ++i) {
+    if (args[i] == "--json") json = true;
+    else if (args[i] == "--threads" && i + 1 < args.size()) threads = std::atoi(args[++i].c_str());
+    else if (!args[i].empty() && args[i][0] == '-') {
+      std::cerr << "meshflow quality: unknown option " << args[i] << "\nusage: meshflow quality FILE [--json] [--threads N]\n";
+      return 2;
+    } else if (file.empty()) file = args[i];
+    else {
+      std::cerr << "meshflow quality: one FILE expected\n";
+      return 2;
+    }
+  }
+  if (file.empty()) {
+    std::cerr << "usage: meshflow quality FILE [--json] [--threads N]\n";
+    return 2;
+  }
+  try {
+    auto m = read_mesh(file);
+    auto s = model::mesh_stats(m, threads);
+    if (json) {
+      std::cout << s.dump(2) << "\n";
+    } else {
+      std::cout << file << ": order " << s["order"] << ", " << s["nodes"] << " nodes\n";
+      std::cout << "  elements:";
+      for (auto& [k, v] : s["elements"].items()) std::cout << " " << k << " " << v;
+      std::cout << "\n  boundary:";
+      for (auto& [k, v] : s["boundary"].items()) std::cout << " " << k << " " << v;
+      std::cout << "\n  invalid elements: " << s["invalid"] << " (" << s["validity_method"].get<std::string>() << ")";
+      if (s["invalid"].get<size_t>()) std::cout << "  tags: " << s["invalid_elements"].dump();
+      std::cout << "\n  non-conforming faces: " << s["nonconforming_faces"] << "\n";
+      std::cout << "  scaled Jacobian: min " << s["min_scaled_jacobian"] << ", median " << s["median_scaled_jacobian"] << "\n";
+      std::cout << "  max aspect ratio: " << s["max_aspect_ratio"] << "\n";
+    }
+    return 0;
+  } catch (const std::exception& e) {
+    std::cerr << "meshflow quality: " << e.what() << "\n";
+    return 2;
+  }
+}
+
+int convert_cmd(const std::vector<std::string>& args) {
+  std::vector<std::string> files;
+  bool ascii = false;
+  for (auto& a : args) {
+    if (a == "--ascii") ascii = true;
+    else if (!a.empty() && a[0] == '-') {
+      std::cerr << "meshflow convert: unknown option " << a << "\nusage: meshflow convert IN OUT [--ascii]\n";
+      return 2;
+    } else files.push_back(a);
+  }
+  if (files.size() != 2) {
+    std::cerr << "usage: meshflow convert IN OUT [--ascii]   (formats by extension: .msh .vtu .xml)\n";
+    return 2;
+  }
+  try {
+    auto m = read_mesh(files[0]);
+    std::string e = ext_of(files[1]);
+    if (e == ".msh") write_msh(m, files[1], !ascii);
+    else write_mesh(m, files[1]);
+    return 0;
+  } catch (const std::exception& e) {
+    std::cerr << "meshflow convert: " << e.what() << "\n";
+    return 2;
+  }
+}
+
+ArtifactFormat fmt(const char* ext, const char* summary, MeshFormat f) {
+  return {ext, summary, [f](const std::filesystem::path& in, const std::filesystem::path& out) {
+            write_mesh(read_msh(in), out, f);
+          }};
+}
+
+const ArtifactTypeRegistrar mesh_type({
+    .type = "mesh",
+    .extension = ".msh",
+    .summary = "high-order hybrid mesh (stored as binary Gmsh MSH 4.1)",
+    .formats = {{"msh", fmt(".msh", "Gmsh MSH 4.1 binary", MeshFormat::MshBinary)},
+                {"msh-ascii", fmt(".msh", "Gmsh MSH 4.1 ASCII", MeshFormat::MshAscii)},
+                {"vtu", fmt(".vtu", "VTK XML unstructured grid with Lagrange cells", MeshFormat::Vtu)},
+                {"nektar", fmt(".xml", "Nektar++ XML geometry", MeshFormat::Nektar)}},
+    .summarize = [](const std::filesystem::path& p) { return model::mesh_stats(read_msh(p)); },
+});
+
+const CommandRegistrar quality_reg({"quality", "quality FILE [--json] [--threads N]",
+                                    "validity (Bezier bounds of det J), scaled Jacobian, aspect ratio of a mesh",
+                                    quality_cmd});
+const CommandRegistrar convert_reg({"convert", "convert IN OUT [--ascii]",
+                                    "convert meshes between .msh (4.1; reads 2.2), .vtu and Nektar++ .xml", convert_cmd});
+
+}  // namespace
+}  // namespace meshflow::io

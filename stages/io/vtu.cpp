@@ -1,0 +1,196 @@
+// VTU (VTK XML UnstructuredGrid) writer with appended raw binary data and VTK Lagrange cells,
+// and a reader for the files it writes (appended raw, UInt64 headers). Node orderings from
+// model::vtk_to_gmsh (checked against VTK's own cells in tests/io).
+#include "stages/io/mesh_io.hpp"
+#include "stages/io/reader.hpp"
+#include "stages/model/quality.hpp"
+
+#include <cstring>
+#include <fstream>
+#include <map>
+#include <tuple>
+
+namespace meshflow::io {
+
+using namespace model;
+
+namespace {
+template <class T>
+void append(std::string& s, const std::vector<T>& v) {
+  std::uint64_t n = v.size() * sizeof(T);
+  s.append(reinterpret_cast<const char*>(&n), 8);
+  s.append(reinterpret_cast<const char*>(v.data()), n);
+}
+std::string attr(const std::string& tag, const std::string& name) {
+  auto p = tag.find(" " + name + "=\"");
+  if (p == std::string::npos) return {};
+  p += name.size() + 3;
+  return tag.substr(p, tag.find('"', p) - p);
+}
+}  // namespace
+
+void write_vtu(const Mesh& m, const std::filesystem::path& path) {
+  m.check();
+  auto quality = mesh_quality(m);
+  std::vector<double> pts(3 * m.num_nodes());
+  for (size_t i = 0; i < m.num_nodes(); ++i) pts[3 * i] = m.x[i], pts[3 * i + 1] = m.y[i], pts[3 * i + 2] = m.z[i];
+  std::vector<std::int64_t> conn, offs;
+  std::vector<std::uint8_t> types, valid;
+  std::vector<std::int32_t> gtype, edim, etag, phys, order;
+  std::vector<double> sj;
+  for (size_t bi = 0; bi < m.blocks.size(); ++bi) {
+    const auto& b = m.blocks[bi];
+    int vt = vtk_cell_type(b.shape, b.order);
+    const std::vector<int>* perm = vt ? &vtk_to_gmsh(b.shape, b.order) : nullptr;
+    if (!vt) vt = 14;  // pyramid of order >= 3: VTK 9.1 has no such cell; its vertices only
+    const Entity* ent = m.find_entity(b.entity_dim, b.entity_tag);
+    const int ph = ent && !ent->physicals.empty() ? ent->physicals[0] : 0;
+    for (size_t e = 0; e < b.size(); ++e) {
+      const std::uint32_t* nd = b.element(e);
+      if (perm)
+        for (int k : *perm) conn.push_back(nd[k]);
+      else
+        for (int k = 0; k < 5; ++k) conn.push_back(nd[k]);
+      offs.push_back((std::int64_t)conn.size());
+      types.push_back((std::uint8_t)vt);
+      gtype.push_back(gmsh_type(b.shape, b.order));
+      edim.push_back(b.entity_dim), etag.push_back(b.entity_tag), phys.push_back(ph), order.push_back(b.order);
+      const bool q = !quality[bi].empty();
+      sj.push_back(q ? quality[bi][e].scaled_jacobian : 1.0);
+      valid.push_back(q ? quality[bi][e].valid : 1);
+    }
+  }
+  std::string head, data;
+  size_t off = 0;
+  auto arr = [&](const char* type, const char* name, int comps, auto& v) {
+    head += std::string("        <DataArray type=\"") + type + "\"" + (name ? std::string(" Name=\"") + name + "\"" : "") +
+            (comps > 1 ? " NumberOfComponents=\"" + std::to_string(comps) + "\"" : "") +
+            " format=\"appended\" offset=\"" + std::to_string(off) + "\"/>\n";
+    append(data, v);
+    off = data.size();
+  };
+  head += "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">\n";
+  head += "  <UnstructuredGrid>\n    <Piece NumberOfPoints=\"" + std::to_string(m.num_nodes()) + "\" NumberOfCells=\"" +
+          std::to_string(types.size()) + "\">\n      <Points>\n";
+  arr("Float64", "Points", 3, pts);
+  head += "      </Points>\n      <Cells>\n";
+  arr("Int64", "connectivity", 1, conn);
+  arr("Int64", "offsets", 1, offs);
+  arr("UInt8", "types", 1, types);
+  head += "      </Cells>\n      <CellData Scalars=\"scaled_jacobian\">\n";
+  arr("Int32", "gmsh_type", 1, gtype);
+  arr("Int32", "order", 1, order);
+  arr("Int32", "entity_dim", 1, edim);
+  arr("Int32", "entity_tag", 1, etag);
+  arr("Int32", "physical", 1, phys);
+  arr("Float64", "scaled_jacobian", 1, sj);
+  arr("UInt8", "valid", 1, valid);
+  head += "      </CellData>\n    </Piece>\n  </UnstructuredGrid>\n  <AppendedData encoding=\"raw\">\n   _";
+  std::ofstream f(path, std::ios::binary);
+  if (!f) throw MeshIOError(path.string() + ": cannot open the file for writing");
+  f << head;
+  f.write(data.data(), (std::streamsize)data.size());
+  f << "\n  </AppendedData>\n</VTKFile>\n";
+  if (!f) throw MeshIOError(path.string() + ": write failed (disk full?)");
+}
+
+Mesh read_vtu(const std::filesystem::path& path) {
+  const std::string d = detail::slurp(path);
+  detail::Cursor c(path.string(), d);
+  if (d.find("<VTKFile") == std::string::npos || d.find("UnstructuredGrid") == std::string::npos)
+    c.fail("not a VTK XML UnstructuredGrid file (no <VTKFile type=\"UnstructuredGrid\">)", false, 0);
+  size_t app = d.find("<AppendedData");
+  if (app == std::string::npos) c.fail("only VTU files with appended raw data (as meshflow writes them) can be read", false, 0);
+  if (d.find("header_type=\"UInt64\"") == std::string::npos || d.find("encoding=\"raw\"") == std::string::npos ||
+      d.find("compressor=") < app)
+    c.fail("only uncompressed appended raw VTU with UInt64 headers can be read", false, 0);
+  size_t base = d.find('_', app);
+  if (base == std::string::npos) c.fail("AppendedData has no '_' marker", false, app);
+  ++base;
+  std::map<std::string, std::pair<std::string, size_t>> arrays;  // name -> (type, offset)
+  std::string piece;
+  for (size_t p = d.find("<DataArray"); p != std::string::npos && p < app; p = d.find("<DataArray", p + 1)) {
+    std::string tag = d.substr(p, d.find('>', p) - p);
+    if (attr(tag, "format") != "appended") c.fail("DataArray not in appended format", false, p);
+    arrays[attr(tag, "Name")] = {attr(tag, "type"), std::stoull(attr(tag, "offset").empty() ? "0" : attr(tag, "offset"))};
+  }
+  auto get = [&](const std::string& name, const std::string& type, size_t elem) -> std::pair<const char*, size_t> {
+    auto it = arrays.find(name);
+    if (it == arrays.end()) c.fail("missing DataArray " + name, false, 0);
+    if (it->second.first != type) c.fail("DataArray " + name + " has type " + it->second.first + ", expected " + type, false, 0);
+    size_t at = base + it->second.second;
+    if (at + 8 > d.size()) c.fail("DataArray " + name + " lies past the end of the file (truncated?)", true, at);
+    std::uint64_t n;
+    std::memcpy(&n, d.data() + at, 8);
+    if (at + 8 + n > d.size() || n % elem) c.fail("DataArray " + name + " is truncated or has a bad size", true, at);
+    return {d.data() + at + 8, n / elem};
+  };
+  auto [pp, np3] = get("Points", "Float64", 8);
+  auto [cp, nc] = get("connectivity", "Int64", 8);
+  auto [op, no] = get("offsets", "Int64", 8);
+  auto [tp, nt] = get("types", "UInt8", 1);
+  if (np3 % 3) c.fail("Points size is not a multiple of 3", false, 0);
+  if (no != nt) c.fail("inconsistent counts: " + std::to_string(no) + " offsets for " + std::to_string(nt) + " cell types", false, 0);
+  Mesh m;
+  const size_t nn = np3 / 3;
+  m.x.resize(nn), m.y.resize(nn), m.z.resize(nn);
+  for (size_t i = 0; i < nn; ++i) {
+    double p[3];
+    std::memcpy(p, pp + 24 * i, 24);
+    if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2]))
+      c.fail("point " + std::to_string(i) + " has a non-finite coordinate", true, (pp - d.data()) + 24 * i);
+    m.x[i] = p[0], m.y[i] = p[1], m.z[i] = p[2];
+  }
+  std::vector<std::int32_t> edim(nt, -1), etag(nt, 0), phys(nt, 0);
+  for (auto [name, vec] : {std::pair<const char*, std::vector<std::int32_t>*>{"entity_dim", &edim}, {"entity_tag", &etag}, {"physical", &phys}})
+    if (arrays.count(name)) {
+      auto [q, n] = get(name, "Int32", 4);
+      if (n != nt) c.fail(std::string("inconsistent counts in cell data ") + name, false, 0);
+      std::memcpy(vec->data(), q, 4 * n);
+    }
+  std::map<std::tuple<int, int, int, int>, size_t> block_of;
+  std::int64_t prev = 0;
+  for (size_t e = 0; e < nt; ++e) {
+    std::int64_t end;
+    std::memcpy(&end, op + 8 * e, 8);
+    if (end < prev || (std::uint64_t)end > nc) c.fail("cell " + std::to_string(e) + " has an offset out of range", true, (op - d.data()) + 8 * e);
+    Shape s;
+    int order;
+    const int vt = (std::uint8_t)tp[e];
+    if (!from_vtk_cell_type(vt, (int)(end - prev), s, order))
+      c.fail("cell " + std::to_string(e) + ": unsupported VTK cell type " + std::to_string(vt) + " with " +
+             std::to_string(end - prev) + " points", true, (tp - d.data()) + e);
+    const int dim = edim[e] >= 0 ? edim[e] : dimension(s);
+    auto key = std::make_tuple(dim, (int)etag[e], (int)s, order);
+    auto it = block_of.find(key);
+    if (it == block_of.end()) {
+      it = block_of.emplace(key, m.blocks.size()).first;
+      ElementBlock b;
+      b.shape = s, b.order = order, b.entity_dim = dim, b.entity_tag = etag[e];
+      m.blocks.push_back(b);
+      if (phys[e]) m.add_entity(dim, etag[e], {phys[e]});
+    }
+    auto& b = m.blocks[it->second];
+    const auto& perm = vtk_to_gmsh(s, order);
+    std::vector<std::uint32_t> nodes(b.nodes_per_element(), 0xffffffffu);
+    for (size_t k = 0; k < perm.size(); ++k) {
+      std::int64_t id;
+      std::memcpy(&id, cp + 8 * (prev + k), 8);
+      if (id < 0 || (std::uint64_t)id >= nn)
+        c.fail("cell " + std::to_string(e) + " refers to point " + std::to_string(id) + " (out of range)", true, (cp - d.data()) + 8 * (prev + k));
+      nodes[perm[k]] = (std::uint32_t)id;
+    }
+    if (perm.size() != nodes.size())  // quadratic pyramid: VTK has no base-centre node
+      c.fail("cell " + std::to_string(e) + ": a VTK quadratic pyramid cannot be read back losslessly", true, 0);
+    b.add(nodes.data());
+    prev = end;
+  }
+  try {
+    m.check();
+  } catch (const std::invalid_argument& e) {
+    throw MeshIOError(path.string() + ": " + e.what());
+  }
+  return m;
+}
+
+}  // namespace meshflow::io
