@@ -45,8 +45,13 @@
 //    The radius of a medial point is the distance to the boundary: the ball radius R (the
 //    distance to the nearest sample, exact by the empty-ball property) refined down to the
 //    distance to the tangent planes of the face contacts whose normal is within 25° of the
-//    contact direction (exact for planes, second order for curved faces); the stage refines it
-//    further by projecting c on the contact faces through the CAD interface.
+//    contact direction (exact for planes, second order for curved faces). The stage then sets
+//    it to the exact distance to the contact faces through the CAD interface: the distance to
+//    the plane for planar faces, else the foot point found by a damped Newton iteration from the
+//    contact sample's (u,v) (accepted when it is within two spacings of the contact, else only
+//    if the face classifier says it is inside the trimmed face), never above R.
+//    (The stage classifies (u,v) points against each face's wires as uv polygons and calls the
+//    exact OCCT classifier only within 4× the polygons' measured chord error of the boundary.)
 // 5. Local feature size at every sample: the distance to the nearest medial point (either side).
 // 6. Halos: a fluid-side medial ball whose contacts lie on two faces with no face in common
 //    (an edge or vertex sample belongs to all its faces) is where the offsets of those faces
@@ -86,6 +91,18 @@
 //              i32 medial, sample_a, sample_b, face_a, face_b (face_a < face_b), pad
 // Samples are in sampling order (faces by id, then edges, then vertices); medial points are
 // sorted by (side, contacts); halos by (face_a, face_b, medial).
+//
+// ── Reading it (e.g. in the shell stage) ───────────────────────────────────────────────
+//   auto m = meshflow::medial::read(ctx.input("medial").path);       // StageError if corrupt
+//   for (size_t i = 0; i < m.samples.size(); ++i) {
+//     if (!m.samples[i].refined) continue;                            // wall samples
+//     double reach = m.info[i].r_in;    // fluid-side medial ball radius tangent here (-1: none)
+//     double lfs = m.info[i].lfs;       // distance to the medial object
+//     int other = m.info[i].halo_face;  // offsets of this face collide with `other` at r_in
+//   }
+//   // LFS at any point: nearest wall sample
+//   std::vector<Vec3> pts; for (auto& s : m.samples) pts.push_back(s.p);
+//   meshflow::medial::NearestIndex near(pts);  auto [i, d] = near.nearest(q, 1)[0];
 #pragma once
 
 #include <array>
