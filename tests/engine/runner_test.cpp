@@ -162,7 +162,7 @@ TEST_CASE("a missing input file is a clear error before anything runs") {
 TEST_CASE("SIGKILL mid-write leaves no action entry and the next run recomputes") {
   Fixture f("meshflow: 1\nname: slow\nstages:\n  s: {kind: t_slow, with: {chunks: 40, ms: 25}}\noutputs:\n  s: {from: s}\n");
   fs::path log = f.dir / "log.txt";
-  int pid = spawn({"run", f.wf.string(), "--cache", f.cache.string(), "--out", f.out.string()}, log);
+  int pid = spawn_meshflow({"run", f.wf.string(), "--cache", f.cache.string(), "--out", f.out.string()}, log);
   // wait until the stage is writing (its output file grows in the scratch dir)
   bool writing = false;
   for (int i = 0; i < 200 && !writing; ++i) {
@@ -195,8 +195,8 @@ stages:
 outputs:
   o: {from: t}
 )");
-  int p1 = spawn({"run", f.wf.string(), "--cache", f.cache.string(), "--out", (f.dir / "o1").string()}, f.dir / "l1");
-  int p2 = spawn({"run", f.wf.string(), "--cache", f.cache.string(), "--out", (f.dir / "o2").string()}, f.dir / "l2");
+  int p1 = spawn_meshflow({"run", f.wf.string(), "--cache", f.cache.string(), "--out", (f.dir / "o1").string()}, f.dir / "l1");
+  int p2 = spawn_meshflow({"run", f.wf.string(), "--cache", f.cache.string(), "--out", (f.dir / "o2").string()}, f.dir / "l2");
   CHECK(wait_exit(p1) == 0);
   CHECK(wait_exit(p2) == 0);
   INFO(read_text(f.dir / "l1"), read_text(f.dir / "l2"));

@@ -23,26 +23,6 @@ using nlohmann::json;
 
 namespace mftest {
 
-fs::path temp_dir(const std::string& tag) {
-  static std::mt19937_64 rng(std::random_device{}());
-  fs::path p = fs::temp_directory_path() / ("meshflow-test-" + tag + "-" + std::to_string(getpid()) + "-" + std::to_string(rng() % 1000000));
-  fs::remove_all(p);
-  fs::create_directories(p);
-  return p;
-}
-
-void write_text(const fs::path& p, const std::string& text) {
-  fs::create_directories(p.parent_path());
-  std::ofstream(p, std::ios::binary) << text;
-}
-
-std::string read_text(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::ostringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
-
 CliResult cli(const std::vector<std::string>& args) {
   std::vector<std::string> a = {"meshflow"};
   a.insert(a.end(), args.begin(), args.end());
@@ -58,28 +38,10 @@ CliResult cli(const std::vector<std::string>& args) {
   return {code, out.str(), err.str()};
 }
 
-int spawn(const std::vector<std::string>& args, const fs::path& log) {
-  std::string self = fs::read_symlink("/proc/self/exe");
-  pid_t pid = fork();
-  if (pid == 0) {
-    int fd = open(log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    dup2(fd, 1);
-    dup2(fd, 2);
-    std::vector<std::string> a = {self, "--as-meshflow"};
-    a.insert(a.end(), args.begin(), args.end());
-    std::vector<char*> argv;
-    for (auto& s : a) argv.push_back(s.data());
-    argv.push_back(nullptr);
-    execv(self.c_str(), argv.data());
-    _exit(127);
-  }
-  return pid;
-}
-
-int wait_exit(int pid) {
-  int st = 0;
-  waitpid(pid, &st, 0);
-  return WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
+int spawn_meshflow(const std::vector<std::string>& args, const fs::path& log) {
+  std::vector<std::string> a = {fs::read_symlink("/proc/self/exe").string(), "--as-meshflow"};
+  a.insert(a.end(), args.begin(), args.end());
+  return spawn(a, log);
 }
 
 std::vector<std::string> calls(const fs::path& file) {

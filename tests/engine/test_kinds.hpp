@@ -2,18 +2,13 @@
 // the CLI (in-process, or as a child process via `test_engine --as-meshflow`).
 #pragma once
 
+#include "support.hpp"
+
 #include <filesystem>
 #include <string>
 #include <vector>
 
 namespace mftest {
-
-namespace fs = std::filesystem;
-
-// A fresh empty directory under the system temp dir.
-fs::path temp_dir(const std::string& tag);
-void write_text(const fs::path& p, const std::string& text);
-std::string read_text(const fs::path& p);
 
 struct CliResult {
   int code;
@@ -22,8 +17,7 @@ struct CliResult {
 // Runs `meshflow ARGS` in-process (stage kinds of this test binary available).
 CliResult cli(const std::vector<std::string>& args);
 // Starts `meshflow ARGS` as a child process (this test binary with --as-meshflow); returns pid.
-int spawn(const std::vector<std::string>& args, const fs::path& log);
-int wait_exit(int pid);  // exit code, or 128+signal
+int spawn_meshflow(const std::vector<std::string>& args, const fs::path& log);
 
 // Lines appended by every test-stage run (stage name), via $MESHFLOW_TEST_CALLS.
 std::vector<std::string> calls(const fs::path& file);

@@ -2,6 +2,8 @@
 // real `meshflow` binary: SIGKILL at random moments, concurrent runs on one cache.
 #include <doctest/doctest.h>
 
+#include "support.hpp"
+
 #include <nlohmann/json.hpp>
 
 #include <chrono>
@@ -19,39 +21,13 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 
 namespace {
-fs::path temp_dir(const std::string& tag) {
-  fs::path p = fs::temp_directory_path() / ("meshflow-rob-" + tag + "-" + std::to_string(getpid()));
-  fs::remove_all(p);
-  fs::create_directories(p);
-  return p;
+std::string slurp(const fs::path& p) { return mftest::read_text(p); }
+int spawn(std::vector<std::string> args, const fs::path& log) {
+  args.insert(args.begin(), MESHFLOW_EXE);
+  return mftest::spawn(args, log);
 }
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::ostringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
-int spawn(const std::vector<std::string>& args, const fs::path& log) {
-  pid_t pid = fork();
-  if (pid == 0) {
-    int fd = open(log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    dup2(fd, 1);
-    dup2(fd, 2);
-    std::vector<std::string> a = {MESHFLOW_EXE};
-    a.insert(a.end(), args.begin(), args.end());
-    std::vector<char*> argv;
-    for (auto& s : a) argv.push_back(s.data());
-    argv.push_back(nullptr);
-    execv(MESHFLOW_EXE, argv.data());
-    _exit(127);
-  }
-  return pid;
-}
-int wait_exit(int pid) {
-  int st = 0;
-  waitpid(pid, &st, 0);
-  return WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
-}
+using mftest::temp_dir;
+using mftest::wait_exit;
 int count_entries(const fs::path& d) {
   int n = 0;
   if (fs::exists(d))

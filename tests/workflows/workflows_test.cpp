@@ -1,6 +1,8 @@
 // End-to-end: the real `meshflow` binary on the real workflows of workflows/, as a user runs it.
 #include <doctest/doctest.h>
 
+#include "support.hpp"
+
 #include <nlohmann/json.hpp>
 
 #include <array>
@@ -18,32 +20,10 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 
 namespace {
-struct Result {
-  int code;
-  std::string out;
-};
-Result sh(const std::string& cmd) {
-  std::string full = cmd + " 2>&1";
-  std::unique_ptr<FILE, int (*)(FILE*)> p(popen(full.c_str(), "r"), &pclose);
-  std::string out;
-  std::array<char, 4096> buf;
-  size_t n;
-  while ((n = fread(buf.data(), 1, buf.size(), p.get())) > 0) out.append(buf.data(), n);
-  int st = pclose(p.release());
-  return {WIFEXITED(st) ? WEXITSTATUS(st) : 128, out};
-}
+using mftest::sh;
 std::string meshflow() { return std::string(MESHFLOW_EXE); }
-fs::path temp_dir() {
-  fs::path p = fs::temp_directory_path() / ("meshflow-e2e-" + std::to_string(getpid()) + "-" + std::to_string(std::random_device{}() % 100000));
-  fs::create_directories(p);
-  return p;
-}
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p);
-  std::ostringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
+fs::path temp_dir() { return mftest::temp_dir("e2e"); }
+std::string slurp(const fs::path& p) { return mftest::read_text(p); }
 }  // namespace
 
 TEST_CASE("every registered kind has a schema the validator enforces") {

@@ -1,0 +1,29 @@
+// Helpers shared by the test executables: temp folders, files, child processes.
+#pragma once
+
+#include <filesystem>
+#include <string>
+#include <vector>
+
+namespace mftest {
+
+namespace fs = std::filesystem;
+
+// A fresh empty folder under the system temp folder, unique to this process and call.
+fs::path temp_dir(const std::string& tag);
+void write_text(const fs::path& p, const std::string& text);  // creates parent folders
+std::string read_text(const fs::path& p);                      // "" if unreadable
+
+// Starts argv[0] with argv (stdout and stderr to `log`); returns the pid.
+int spawn(const std::vector<std::string>& argv, const fs::path& log);
+// Exit code of the child, or 128 + signal.
+int wait_exit(int pid);
+
+struct ShellResult {
+  int code;
+  std::string out;  // stdout and stderr
+};
+// Runs a shell command line.
+ShellResult sh(const std::string& command);
+
+}  // namespace mftest
