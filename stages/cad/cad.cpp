@@ -89,6 +89,7 @@ void Shape::Impl::index() {
     if (!BRep_Tool::Degenerated(e)) curves[i] = BRep_Tool::Curve(e, f, l);
   }
   face_proj.assign(faces.Extent(), {});
+  face_seeds.assign(faces.Extent(), {});
 }
 
 const TopoDS_Face& Shape::Impl::face(int i) const {
@@ -115,6 +116,7 @@ Shape Shape::clone() const {
   c->edges = impl_->edges; c->vertices = impl_->vertices; c->edge_faces = impl_->edge_faces;
   c->tags = impl_->tags; c->surfaces = impl_->surfaces; c->curves = impl_->curves; c->ranges = impl_->ranges;
   c->face_proj.assign(impl_->faces.Extent(), {});
+  c->face_seeds.assign(impl_->faces.Extent(), {});
   return Shape(std::move(c));
 }
 
@@ -441,13 +443,45 @@ bool Shape::face_contains_uv(int f, double u, double v, double tol) const {
 SurfaceProjection Shape::project_to_face(int f, const Vec3& p, std::optional<Vec2> hint) const {
   impl_->face(f);
   auto& sas = impl_->face_proj[f];
-  if (sas.IsNull()) sas = new ShapeAnalysis_Surface(impl_->surfaces[f]);
+  const auto& surf = impl_->surfaces[f];
+  if (sas.IsNull()) sas = new ShapeAnalysis_Surface(surf);
   gp_Pnt P = occt::pnt(p);
-  gp_Pnt2d uv = hint ? sas->NextValueOfUV(gp_Pnt2d(hint->u, hint->v), P, 1e-12) : sas->ValueOfUV(P, 1e-12);
+  gp_Pnt2d uv;
+  if (hint) {
+    uv = sas->NextValueOfUV(gp_Pnt2d(hint->u, hint->v), P, 1e-12);
+  } else {
+    // Start Newton from the nearest point of a grid over the face; fall back to OCCT's global
+    // search (Extrema) when that does not improve on the grid point.
+    auto& sd = impl_->face_seeds[f];
+    if (sd.p.empty()) {
+      UVBounds b = face_uv_bounds(f);
+      const int n = 24;
+      for (int i = 0; i <= n; ++i)
+        for (int j = 0; j <= n; ++j) {
+          double u = b.u0 + (b.u1 - b.u0) * i / n, v = b.v0 + (b.v1 - b.v0) * j / n;
+          sd.u.push_back(u);
+          sd.v.push_back(v);
+          sd.p.push_back(surf->Value(u, v));
+        }
+    }
+    // Newton from the 4 nearest grid points (two sheets of a surface can be close, e.g. the
+    // two sides of a sharp trailing edge), the best result wins.
+    std::vector<std::pair<double, size_t>> near;
+    near.reserve(sd.p.size());
+    for (size_t k = 0; k < sd.p.size(); ++k) near.push_back({sd.p[k].SquareDistance(P), k});
+    std::partial_sort(near.begin(), near.begin() + 4, near.end());
+    double bd = 1e300;
+    for (int k = 0; k < 4; ++k) {
+      gp_Pnt2d c = sas->NextValueOfUV(gp_Pnt2d(sd.u[near[k].second], sd.v[near[k].second]), P, 1e-12);
+      double d = surf->Value(c.X(), c.Y()).SquareDistance(P);
+      if (d < bd) bd = d, uv = c;
+    }
+    if (bd > near[0].first * (1 + 1e-12)) uv = sas->ValueOfUV(P, 1e-12);
+  }
   SurfaceProjection r;
   r.u = uv.X();
   r.v = uv.Y();
-  gp_Pnt q = impl_->surfaces[f]->Value(r.u, r.v);
+  gp_Pnt q = surf->Value(r.u, r.v);
   r.point = occt::vec(q);
   r.distance = q.Distance(P);
   return r;

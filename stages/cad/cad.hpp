@@ -182,6 +182,10 @@ class Shape {
   // Point is inside the trimmed face (or on its boundary within tol).
   bool face_contains_uv(int face, double u, double v, double tol = 1e-9) const;
   // Nearest point of the face's surface (within its natural bounds, not the trimmed face).
+  // Without a hint: Newton from the 4 nearest points of a 25x25 grid over face_uv_bounds, or
+  // OCCT's global search when that is not closer than the nearest grid point (~3e4 points/s on
+  // the wing); with a hint (the (u,v) of a neighbouring node): Newton from it (~1e6 points/s).
+  // Meant for points near the face (mesh nodes); a far point may get a local minimum.
   SurfaceProjection project_to_face(int face, const Vec3& p, std::optional<Vec2> hint = {}) const;
   // Wires of the face, the outer wire first; each edge use with its orientation.
   std::vector<std::vector<EdgeUse>> face_wires(int face) const;

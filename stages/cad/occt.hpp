@@ -21,6 +21,7 @@
 #include <nlohmann/json_fwd.hpp>
 
 #include <functional>
+#include <vector>
 #include <string>
 #include <vector>
 
@@ -37,6 +38,11 @@ struct Shape::Impl {
   std::vector<Range> ranges;                             // by edge id
   // lazy projection caches (not thread safe: see Shape::clone)
   mutable std::vector<Handle(ShapeAnalysis_Surface)> face_proj;
+  struct Seeds {
+    std::vector<gp_Pnt> p;
+    std::vector<double> u, v;
+  };
+  mutable std::vector<Seeds> face_seeds;  // a grid over the face's (u,v) bounds: start points
 
   // Builds the maps and geometry caches from `shape`; tags sized to the faces (none).
   void index();
