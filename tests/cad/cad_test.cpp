@@ -119,7 +119,7 @@ TEST_CASE("projection to surfaces and curves recovers parameter and distance") {
   }
 }
 
-TEST_CASE("normals point out of the fluid; curvature at the leading edge is 1/r_LE") {
+TEST_CASE("normals point out of the fluid, curvature at the leading edge is 1/r_LE") {
   const Shape& s = wing().s;
   int f = wing().face("extrusion");
   // the leading edge of the 10 deg wing at z = 0.5 is the origin line: project it
@@ -228,7 +228,7 @@ TEST_CASE("step kind refuses bad files with the file name and what to do") {
   fs::remove_all(dir);
 }
 
-TEST_CASE("relative file paths resolve against the workflow folder; DLR-F6 loads with its 130 stored faces") {
+TEST_CASE("relative file paths resolve against the workflow folder, DLR-F6 loads with its 130 stored faces") {
   fs::path data = MESHFLOW_DATA_DIR;
   if (!fs::exists(data / "dlr_f6/dlr_f6.brep")) return;
   TestContext c("step", {{"file", "dlr_f6/dlr_f6.brep"}}, {}, data);

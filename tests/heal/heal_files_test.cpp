@@ -97,7 +97,7 @@ TEST_CASE("heal: hemisph-cyl.stp with its degenerate edges heals to a valid soli
   CHECK(s.volume() > 0);
 }
 
-TEST_CASE("dlr_f6.brep: 130 faces as stored, one duplicates another; heal gives a valid 129-face solid") {
+TEST_CASE("dlr_f6.brep: 130 faces as stored, one duplicates another, heal gives a valid 129-face solid") {
   fs::path f = data / "dlr_f6/dlr_f6.brep";
   if (!fs::exists(f)) return;
   auto imp = import(f);
