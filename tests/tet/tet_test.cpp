@@ -295,6 +295,79 @@ std::map<int, std::size_t> gmsh_counts(const std::filesystem::path& msh) {
 
 }  // namespace
 
+// A closed near field: an octahedral sphere (subdivided, projected) with one layer of prisms
+// inside a box whose faces share no node with it; only a hole point keeps TetGen out of the
+// shell (without it the prisms' outer faces would get tets on both sides).
+Built build_sphere(int subdiv, double R, double t, double L, int nbox) {
+  Built B;
+  Mesh& m = B.mesh;
+  m.add_physical(2, 1, "wall");
+  m.add_physical(2, 2, "farfield");
+  m.add_physical(3, 10, "fluid");
+  m.add_entity(2, 1, {1});
+  m.add_entity(2, 2, {2});
+  m.add_entity(3, 1, {10});
+  // sphere: octahedron, each triangle split in 4, subdiv times (points merged by key)
+  std::vector<std::array<double, 3>> P = {{1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
+  std::vector<std::array<int, 3>> T = {{0, 2, 4}, {2, 1, 4}, {1, 3, 4}, {3, 0, 4}, {2, 0, 5}, {1, 2, 5}, {3, 1, 5}, {0, 3, 5}};
+  for (int s = 0; s < subdiv; ++s) {
+    std::map<std::pair<int, int>, int> mid;
+    auto midp = [&](int a, int b) {
+      auto k = std::make_pair(std::min(a, b), std::max(a, b));
+      auto it = mid.find(k);
+      if (it != mid.end()) return it->second;
+      std::array<double, 3> q;
+      for (int d = 0; d < 3; ++d) q[d] = 0.5 * (P[a][d] + P[b][d]);
+      double n = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]);
+      for (auto& v : q) v /= n;
+      P.push_back(q);
+      return mid[k] = int(P.size()) - 1;
+    };
+    std::vector<std::array<int, 3>> T2;
+    for (auto& tr : T) {
+      int ab = midp(tr[0], tr[1]), bc = midp(tr[1], tr[2]), ca = midp(tr[2], tr[0]);
+      T2.push_back({tr[0], ab, ca}), T2.push_back({ab, tr[1], bc}), T2.push_back({ca, bc, tr[2]}), T2.push_back({ab, bc, ca});
+    }
+    T = T2;
+  }
+  std::vector<std::uint32_t> w, o;
+  for (auto& q : P) w.push_back(m.add_node(R * q[0], R * q[1], R * q[2]));
+  for (auto& q : P) o.push_back(m.add_node((R + t) * q[0], (R + t) * q[1], (R + t) * q[2]));
+  double poly = 0;
+  for (auto& tr : T) {
+    m.block(Shape::Tri, 1, 2, 1).add({w[tr[0]], w[tr[1]], w[tr[2]]});
+    std::array<std::uint32_t, 6> pr{w[tr[0]], w[tr[1]], w[tr[2]], o[tr[0]], o[tr[1]], o[tr[2]]};
+    if (tet_vol(m, pr[0], pr[1], pr[2], pr[3]) < 0) std::swap(pr[1], pr[2]), std::swap(pr[4], pr[5]);
+    m.block(Shape::Prism, 1, 3, 1).add(pr.data());
+    poly += std::abs(R * R * R * (P[tr[0]][0] * (P[tr[1]][1] * P[tr[2]][2] - P[tr[1]][2] * P[tr[2]][1]) -
+                                 P[tr[0]][1] * (P[tr[1]][0] * P[tr[2]][2] - P[tr[1]][2] * P[tr[2]][0]) +
+                                 P[tr[0]][2] * (P[tr[1]][0] * P[tr[2]][1] - P[tr[1]][1] * P[tr[2]][0]))) / 6;
+  }
+  // box [-L, L]^3: structured faces sharing their edge nodes
+  std::map<std::array<int, 3>, std::uint32_t> bn;
+  auto node = [&](std::array<int, 3> ijk) {
+    auto it = bn.find(ijk);
+    if (it != bn.end()) return it->second;
+    return bn[ijk] = m.add_node(-L + 2 * L * ijk[0] / nbox, -L + 2 * L * ijk[1] / nbox, -L + 2 * L * ijk[2] / nbox);
+  };
+  for (int ax = 0; ax < 3; ++ax)
+    for (int side = 0; side < 2; ++side)
+      for (int i = 0; i < nbox; ++i)
+        for (int j = 0; j < nbox; ++j) {
+          auto at = [&](int a, int b) {
+            std::array<int, 3> k;
+            k[ax] = side * nbox, k[(ax + 1) % 3] = a, k[(ax + 2) % 3] = b;
+            return node(k);
+          };
+          std::uint32_t a = at(i, j), b = at(i + 1, j), c = at(i + 1, j + 1), d = at(i, j + 1);
+          m.block(Shape::Tri, 1, 2, 2).add({a, b, c});
+          m.block(Shape::Tri, 1, 2, 2).add({a, c, d});
+          B.far_tris += 2;
+        }
+  B.volume = 8 * L * L * L - poly;
+  return B;
+}
+
 TEST_CASE("tet: cylinder in a box, one layer of prisms: valid, conforming, shell kept, volumes add up") {
   Case c;
   Built in = build(c);
@@ -498,3 +571,39 @@ TEST_CASE("tet stage: reads and writes the mesh artifact, deterministic bytes, G
   CHECK(f.stats_["mesh"]["elements"]["tet"].get<std::size_t>() > 2400);
 }
 #endif
+
+TEST_CASE("tet: closed near field (sphere with prisms in a box): a hole point keeps the shell empty") {
+  Built in = build_sphere(3, 0.5, 0.05, 2.0, 6);
+  meshflow::tet::Options opt;
+  meshflow::tet::Report rep;
+  Mesh out = meshflow::tet::fill_far_field(in.mesh, opt, rep);
+  MESSAGE("sphere: " << rep.to_json().dump());
+  CHECK(rep.near_components == 1);
+  CHECK(rep.shell_triangles == 8 * 64);
+  CHECK(rep.boundary_triangles == in.far_tris);
+  std::size_t n_in = in.mesh.num_nodes();
+  // the box-plane check of check_result is for the pillar's box (L = 2, H = 1.5): here z = 1.5 is
+  // inside the box; check validity, conformity and volume directly
+  auto q = mesh_quality(out, 1);
+  std::size_t invalid = 0;
+  for (auto& b : q)
+    for (auto& e : b) invalid += !e.valid;
+  CHECK(invalid == 0);
+  CHECK(build_topology(out).nonconforming_faces == 0);
+  double vol = 0;
+  for (auto& b : out.blocks)
+    if (dimension(b.shape) == 3)
+      for (std::size_t e = 0; e < b.size(); ++e) vol += elem_vol(out, b.shape, b.element(e));
+  CHECK(vol == doctest::Approx(in.volume).epsilon(1e-10));
+  // no tet inside the shell
+  std::size_t inside = 0;
+  for (auto& b : out.blocks)
+    if (b.shape == Shape::Tet)
+      for (std::size_t e = 0; e < b.size(); ++e) {
+        double c[3] = {0, 0, 0};
+        for (int k = 0; k < 4; ++k) c[0] += out.x[b.element(e)[k]] / 4, c[1] += out.y[b.element(e)[k]] / 4, c[2] += out.z[b.element(e)[k]] / 4;
+        inside += std::sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]) < 0.5;
+      }
+  CHECK(inside == 0);
+  CHECK(out.num_nodes() == n_in + rep.steiner_points);
+}
