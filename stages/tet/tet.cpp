@@ -82,8 +82,7 @@ class Builder {
   Builder(const Mesh& near, const Options& opt, Report& rep, const std::function<void(const std::string&)>& log)
       : in_(near), out_(near), opt_(opt), rep_(rep), log_(log) {}
 
-  Mesh run() {
-    auto t0 = std::chrono::steady_clock::now();
+  void prepare() {
     check_input();
     collect_faces();
     match_faces();
@@ -92,6 +91,39 @@ class Builder {
     check_closed();
     holes();
     build_plc();
+    rep_.switches = switches();
+  }
+
+  std::string write_poly(const std::string& stem) {
+    prepare();
+    std::FILE* f = std::fopen((stem + ".poly").c_str(), "w");
+    if (!f) throw StageError("tet: cannot write " + stem + ".poly");
+    std::size_t np = plc_.points.size() / 3, nf = plc_.triangles.size() / 3, nh = plc_.holes.size() / 3;
+    std::fprintf(f, "%zu 3 0 0\n", np);
+    for (std::size_t i = 0; i < np; ++i)
+      std::fprintf(f, "%zu %.17g %.17g %.17g\n", i, plc_.points[3 * i], plc_.points[3 * i + 1], plc_.points[3 * i + 2]);
+    std::fprintf(f, "%zu 1\n", nf);
+    for (std::size_t i = 0; i < nf; ++i)
+      std::fprintf(f, "1 0 %d\n3 %u %u %u\n", plc_.markers[i], plc_.triangles[3 * i], plc_.triangles[3 * i + 1], plc_.triangles[3 * i + 2]);
+    std::fprintf(f, "%zu\n", nh);
+    for (std::size_t i = 0; i < nh; ++i)
+      std::fprintf(f, "%zu %.17g %.17g %.17g\n", i, plc_.holes[3 * i], plc_.holes[3 * i + 1], plc_.holes[3 * i + 2]);
+    std::fprintf(f, "0\n");
+    bool ok = std::fclose(f) == 0;
+    if (!plc_.point_size.empty()) {
+      std::FILE* g = std::fopen((stem + ".mtr").c_str(), "w");
+      if (!g) throw StageError("tet: cannot write " + stem + ".mtr");
+      std::fprintf(g, "%zu 1\n", np);
+      for (double h : plc_.point_size) std::fprintf(g, "%.17g\n", h);
+      ok = std::fclose(g) == 0 && ok;
+    }
+    if (!ok) throw StageError("tet: cannot write " + stem + ".poly/.mtr (disk full?)");
+    return rep_.switches;
+  }
+
+  Mesh run() {
+    auto t0 = std::chrono::steady_clock::now();
+    prepare();
     call_tetgen();
     assemble();
     verify();
@@ -457,14 +489,18 @@ class Builder {
     }
   }
 
-  void call_tetgen() {
+  std::string switches() const {
     std::string sw = "pYMzQ";
     sw += "q" + fmt(opt_.radius_edge) + "/" + fmt(opt_.min_dihedral);
     if (opt_.max_volume > 0) sw += "a" + fmt(opt_.max_volume);
     if (!plc_.point_size.empty()) sw += "m";
     sw += "O" + std::to_string(opt_.optimisation);
     if (opt_.max_steiner >= 0) sw += "S" + std::to_string(opt_.max_steiner);
-    rep_.switches = sw;
+    return sw;
+  }
+
+  void call_tetgen() {
+    const std::string& sw = rep_.switches;
     auto t0 = std::chrono::steady_clock::now();
     try {
       res_ = detail::run_tetgen(plc_, sw);
@@ -708,7 +744,7 @@ class Builder {
   Mesh out_;
   const Options& opt_;
   Report& rep_;
-  const std::function<void(const std::string&)>& log_;
+  std::function<void(const std::string&)> log_;
   int vol_tag_ = 1;
   std::uint64_t next_node_tag_ = 1;
   std::vector<std::uint32_t> vol_blocks_;
@@ -743,6 +779,12 @@ nlohmann::json Report::to_json() const {
           {"total_seconds", total_seconds},
           {"switches", "-" + switches},
           {"tetgen_version", detail::tetgen_version()}};
+}
+
+std::string write_tetgen_input(const model::Mesh& near, const Options& opt, const std::string& stem) {
+  Report rep;
+  Builder b(near, opt, rep, {});
+  return b.write_poly(stem);
 }
 
 model::Mesh fill_far_field(const model::Mesh& near, const Options& opt, Report& report,

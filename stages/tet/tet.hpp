@@ -69,4 +69,10 @@ struct Report {
 model::Mesh fill_far_field(const model::Mesh& near, const Options& opt, Report& report,
                            const std::function<void(const std::string&)>& log = {});
 
+// Writes the PLC that fill_far_field would give TetGen as TetGen files: <stem>.poly (points,
+// facets with markers, holes) and, with a size field, <stem>.mtr; returns the switches (without
+// the leading '-'), so that `tetgen -<switches> <stem>.poly` reproduces the stage's TetGen run
+// (used by the benchmark and for reporting TetGen problems upstream).
+std::string write_tetgen_input(const model::Mesh& near, const Options& opt, const std::string& stem);
+
 }  // namespace meshflow::tet
