@@ -349,3 +349,43 @@ stages:
   auto v = cli({"gc", f.wf.string(), "--cache", (mnt / "cache").string(), "--verify"});
   CHECK(v.code == 0);
 }
+
+TEST_CASE("the cache folder: beside the workflow by default, MESHFLOW_CACHE, then --cache") {
+  Fixture f("meshflow: 1\nname: where\nstages:\n  a: {kind: t_source}\n");
+  auto run = [&](std::vector<std::string> extra) {
+    std::vector<std::string> a = {"run", f.wf.string(), "--out", f.out.string()};
+    a.insert(a.end(), extra.begin(), extra.end());
+    return cli(a);
+  };
+  unsetenv("MESHFLOW_CACHE");
+  REQUIRE(run({}).code == 0);
+  CHECK(action_count(f.dir / ".meshflow") == 1);
+  setenv("MESHFLOW_CACHE", (f.dir / "env-cache").c_str(), 1);
+  REQUIRE(run({}).code == 0);
+  CHECK(action_count(f.dir / "env-cache") == 1);
+  REQUIRE(run({"--cache", (f.dir / "opt-cache").string()}).code == 0);
+  CHECK(action_count(f.dir / "opt-cache") == 1);
+  unsetenv("MESHFLOW_CACHE");
+}
+
+TEST_CASE("gc --max-age-days drops results unused for longer, keeps recent ones") {
+  Fixture f;
+  REQUIRE(f.run().code == 0);
+  REQUIRE(action_count(f.cache) == 4);
+  // age two entries by 10 days
+  int aged = 0;
+  for (auto& e : fs::directory_iterator(f.cache / "actions")) {
+    if (aged == 2) break;
+    auto old = fs::file_time_type::clock::now() - std::chrono::hours(24 * 10);
+    fs::last_write_time(e.path(), old);
+    ++aged;
+  }
+  auto g = cli({"gc", f.wf.string(), "--cache", f.cache.string(), "--max-age-days", "7", "--grace", "0"});
+  CHECK(g.code == 0);
+  CHECK(g.out.find("removed 2 action entries") != std::string::npos);
+  CHECK(action_count(f.cache) == 2);
+  CHECK(cli({"gc", f.wf.string(), "--cache", f.cache.string(), "--verify"}).code == 0);
+  f.reset_calls();
+  REQUIRE(f.run().code == 0);
+  CHECK(f.calls().size() >= 1);  // what was dropped is recomputed
+}
