@@ -58,7 +58,7 @@ struct Report {
   std::size_t boundary_triangles = 0, boundary_quads_split = 0;
   std::size_t plc_points = 0, plc_facets = 0;
   std::size_t tets = 0, steiner_points = 0;
-  double tetgen_seconds = 0, total_seconds = 0;
+  double tetgen_seconds = 0, check_seconds = 0, total_seconds = 0;  // check: mesh_stats
   std::string switches;
   nlohmann::json mesh_stats;  // model::mesh_stats of the result
   nlohmann::json to_json() const;
