@@ -1,8 +1,10 @@
 // meshflow tet stage — the narrow door to TetGen (private to stages/tet).
 //
 // TetGen defines REAL and must be the only foreign library in its translation unit, so it is
-// included by tetgen_call.cpp only; this header speaks plain vectors. TetGen's chatter (it
-// prints to stdout even with -Q on errors and warnings) is captured and returned as text.
+// included by tetgen_call.cpp only; this header speaks plain vectors. TetGen runs in a forked
+// child process: its chatter (stdout/stderr, even with -Q on errors and warnings) is captured
+// and returned as text, and TetGen 1.5.0's crash after reporting bad input (it frees its mesh
+// twice when it throws) cannot take the stage down with it; the result comes back on a pipe.
 #pragma once
 
 #include <cstdint>
