@@ -1,0 +1,148 @@
+// The split stage through the engine: a test-only source kind writes the junction mesh as a
+// "mesh" artifact; `meshflow run` splits it; outputs, stats, re-run on --set, determinism
+// across thread budgets, and a refused input.
+#include <doctest/doctest.h>
+
+#include "builders.hpp"
+#include "engine/cli.hpp"
+#include "engine/stage.hpp"
+#include "stages/io/mesh_io.hpp"
+#include "stages/model/topology.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <fstream>
+#include <iostream>
+#include <sstream>
+#include <unistd.h>
+
+namespace {
+
+namespace fs = std::filesystem;
+
+// Source kind: the cylinder-on-plate junction mesh of order `order` (optionally without wall
+// groups, to exercise a refusal).
+meshflow::StageRegistrar source_reg({
+    .kind = "split_test_junction",
+    .version = 1,
+    .summary = "test only: the split tests' cylinder-on-plate junction mesh",
+    .run =
+        [](meshflow::StageContext& ctx) {
+          int P = ctx.params().value("order", 2);
+          auto J = splittest::junction_mesh(P, ctx.params().value("segments", 8));
+          if (!ctx.params().value("walls", true))
+            for (auto& g : J.mesh.physicals)
+              if (g.name == "wall") g.name = "body";
+          meshflow::io::write_mesh(J.mesh, ctx.output("mesh", "mesh"), meshflow::io::MeshFormat::MshBinary);
+        },
+    .schema = R"({"type": "object", "additionalProperties": false, "properties": {
+        "order": {"type": "integer", "minimum": 1, "maximum": 6, "default": 2, "description": "order"},
+        "segments": {"type": "integer", "minimum": 4, "maximum": 64, "default": 8, "description": "segments around"},
+        "walls": {"type": "boolean", "default": true, "description": "keep the wall group"}}})"});
+
+struct Cli {
+  int code;
+  std::string out, err;
+};
+Cli run(std::vector<std::string> args) {
+  args.insert(args.begin(), "meshflow");
+  std::vector<char*> argv;
+  for (auto& s : args) argv.push_back(s.data());
+  argv.push_back(nullptr);
+  std::ostringstream out, err;
+  auto* o = std::cout.rdbuf(out.rdbuf());
+  auto* e = std::cerr.rdbuf(err.rdbuf());
+  int code = meshflow::cli_main(int(args.size()), argv.data());
+  std::cout.rdbuf(o);
+  std::cerr.rdbuf(e);
+  return {code, out.str(), err.str()};
+}
+
+std::string slurp(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+fs::path tmpdir() {
+  static int n = 0;
+  auto d = fs::temp_directory_path() / ("meshflow-split-wf-" + std::to_string(getpid()) + "-" + std::to_string(n++));
+  fs::remove_all(d);
+  fs::create_directories(d);
+  return d;
+}
+
+const char* kWorkflow = R"(meshflow: 1
+name: split-test
+stages:
+  source: {kind: split_test_junction, with: {order: 3, segments: 8}}
+  split:  {kind: split, needs: [source], with: {layers: 4, ratio: 1.5}}
+outputs: {mesh: {from: split}}
+)";
+
+nlohmann::json stage_stats(const fs::path& out, const std::string& name) {
+  auto rep = nlohmann::json::parse(slurp(out / "report.json"));
+  for (auto& s : rep["stages"])
+    if (s["name"] == name) return s;
+  return {};
+}
+
+}  // namespace
+
+TEST_CASE("split through meshflow run: artifact, stats, --set re-runs only split, same bytes at 1 and 2 threads") {
+  fs::path d = tmpdir();
+  std::ofstream(d / "w.yaml") << kWorkflow;
+  auto r1 = run({"run", (d / "w.yaml").string(), "--cache", (d / "cache1").string(), "--out", (d / "out1").string(), "--threads", "1"});
+  INFO(r1.out << r1.err);
+  REQUIRE(r1.code == 0);
+  auto m = meshflow::io::read_mesh(d / "out1" / "mesh.msh");
+  auto J = splittest::junction_mesh(3, 8);
+  std::size_t np = 0, nh = 0;
+  for (auto& b : m.blocks) {
+    if (b.shape == splittest::Shape::Prism) np += b.size();
+    if (b.shape == splittest::Shape::Hex) nh += b.size();
+  }
+  CHECK(np == 4 * (J.prisms_a + J.prisms_c));
+  CHECK(nh == 16 * J.hexes);
+  CHECK(meshflow::model::build_topology(m).nonconforming_faces == 0);
+  auto st = stage_stats(d / "out1", "split");
+  REQUIRE(st.is_object());
+  CHECK(st["status"] == "ran");
+  CHECK(st["stats"]["mesh"]["invalid"] == 0);
+  CHECK(st["stats"]["mesh"]["nonconforming_faces"] == 0);
+  CHECK(st["stats"]["split"]["sub"]["prism"] == np);
+  CHECK(st["stats"]["split"]["macro"]["hex_2wall"] == J.hexes);
+  CHECK(st["stats"]["mesh"]["max_aspect_ratio"].get<double>() > 10);
+
+  // another cache, two threads: identical bytes
+  auto r2 = run({"run", (d / "w.yaml").string(), "--cache", (d / "cache2").string(), "--out", (d / "out2").string(), "--threads", "2"});
+  REQUIRE(r2.code == 0);
+  CHECK(slurp(d / "out1" / "mesh.msh") == slurp(d / "out2" / "mesh.msh"));
+
+  // --set split.layers=5 re-runs split only
+  auto r3 = run({"run", (d / "w.yaml").string(), "--cache", (d / "cache1").string(), "--out", (d / "out3").string(), "--set",
+                 "split.layers=5"});
+  INFO(r3.out << r3.err);
+  REQUIRE(r3.code == 0);
+  CHECK(stage_stats(d / "out3", "source")["status"] == "cached");
+  CHECK(stage_stats(d / "out3", "split")["status"] == "ran");
+  CHECK(stage_stats(d / "out3", "split")["stats"]["split"]["sub"]["hex"] == 25 * J.hexes);
+
+  // schema: out-of-range parameters are refused before anything runs
+  auto r4 = run({"run", (d / "w.yaml").string(), "--cache", (d / "cache1").string(), "--out", (d / "out4").string(), "--set",
+                 "split.ratio=0.5"});
+  CHECK(r4.code != 0);
+  fs::remove_all(d);
+}
+
+TEST_CASE("split through meshflow run: a mesh without walls is refused with the stage's message") {
+  fs::path d = tmpdir();
+  std::string wf = kWorkflow;
+  wf.replace(wf.find("segments: 8}"), 12, "segments: 8, walls: false}");
+  std::ofstream(d / "w.yaml") << wf;
+  auto r = run({"run", (d / "w.yaml").string(), "--cache", (d / "cache").string(), "--out", (d / "out").string()});
+  CHECK(r.code != 0);
+  CHECK((r.out + r.err).find("no wall faces") != std::string::npos);
+  fs::remove_all(d);
+}
