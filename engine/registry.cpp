@@ -81,6 +81,21 @@ const nlohmann::json* schema_for(const std::string& name) {
   return it == parsed.end() ? nullptr : it->second.get();
 }
 
+namespace {
+std::map<std::string, std::string>& code_table() {
+  static std::map<std::string, std::string> t;
+  return t;
+}
+}  // namespace
+
+void register_module_code(const std::string& module, const std::string& digest) { code_table()[module] = digest; }
+
+const std::string& module_code(const std::string& module) {
+  static const std::string none;
+  auto it = code_table().find(module);
+  return it == code_table().end() ? none : it->second;
+}
+
 const nlohmann::json* kind_schema(const StageKind& kind) {
   if (kind.schema.empty()) return schema_for(kind.kind);
   static std::map<std::string, std::unique_ptr<nlohmann::json>> inline_schemas;  // parsed once

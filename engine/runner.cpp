@@ -60,6 +60,7 @@ KeyResult make_key(const Workflow& wf, const StageDecl& d, const std::vector<Art
   pre["kind_version"] = kind->version;
   pre["params"] = d.params;
   pre["libraries"] = kind->libraries;
+  if (const std::string& code = module_code(kind->module); !code.empty()) pre["code"] = code;
   json ins = json::array();
   for (auto& a : inputs) ins.push_back({{"stage", a.stage}, {"name", a.name}, {"type", a.type}, {"digest", a.digest}});
   pre["inputs"] = ins;

@@ -97,13 +97,34 @@ struct StageKind {
   // Inline JSON schema of the parameters. Empty (the rule for every product kind): the
   // schema is schemas/<kind>.schema.json. Tests define throwaway kinds with inline schemas.
   std::string schema;
+  // The module (stages/ folder) the kind is compiled in: set by StageRegistrar. The SHA-256
+  // of that module's code is part of the cache key, so a changed algorithm never hits a
+  // stale cache entry even if `version` was not bumped.
+  std::string module;
 };
 
 // Registers a stage kind; called from static initialisers (StageRegistrar).
 void register_stage(StageKind kind);
 
-struct StageRegistrar {
-  explicit StageRegistrar(StageKind kind) { register_stage(std::move(kind)); }
+// Code digest of a module, registered by the file cmake/module_digest.cmake generates for it.
+void register_module_code(const std::string& module, const std::string& digest);
+const std::string& module_code(const std::string& module);  // "" when unknown
+struct ModuleCodeRegistrar {
+  ModuleCodeRegistrar(const char* module, const char* digest) { register_module_code(module, digest); }
 };
+
+#ifndef MESHFLOW_MODULE_NAME
+#define MESHFLOW_MODULE_NAME ""  // outside stages/ (tests): no module, no code digest
+#endif
+// Internal linkage: each translation unit's registrar picks up the module name it is compiled
+// with (meshflow_module() defines MESHFLOW_MODULE_NAME for its sources).
+namespace {
+struct StageRegistrar {
+  explicit StageRegistrar(StageKind kind) {
+    if (kind.module.empty()) kind.module = MESHFLOW_MODULE_NAME;
+    register_stage(std::move(kind));
+  }
+};
+}  // namespace
 
 }  // namespace meshflow

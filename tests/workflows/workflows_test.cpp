@@ -85,6 +85,13 @@ TEST_CASE("naca_wingtip: runs, matches its golden, re-runs from cache, --set re-
   json rep = json::parse(slurp(d / "out/report.json"));
   CHECK(rep["ok"] == true);
   for (auto& s : rep["stages"]) CHECK(s["status"] == "ran");
+  // every real kind's key covers the code of its module (a changed algorithm is never a stale hit)
+  for (auto& s : rep["stages"]) {
+    json entry = json::parse(slurp(d / "cache/actions" / (s["key"].get<std::string>() + ".json")));
+    std::string code = entry["preimage"].value("code", "");
+    INFO(s["name"].get<std::string>());
+    CHECK(code.size() == 64);
+  }
   auto r2 = sh(meshflow() + " run " + wf + common);
   json rep2 = json::parse(slurp(d / "out/report.json"));
   for (auto& s : rep2["stages"]) CHECK(s["status"] == "cached");
