@@ -439,3 +439,75 @@ TEST_CASE("refusals: no wall, a prism without a wall face, order mismatch, oppos
     CHECK_THROWS_AS(split_mesh(m, o2, 1), StageError);
   }
 }
+
+TEST_CASE("periodic: a channel of prisms on a flat wall, periodic in y: the new nodes of the split periodic faces are linked to their masters") {
+  for (int P : {1, 3}) {
+    const int Nx = 4, Ny = 3;
+    const double T = 0.2;
+    Mesh m;
+    add_groups(m);
+    m.add_physical(2, 5, "periodic_lo");
+    m.add_physical(2, 6, "periodic_hi");
+    m.add_entity(2, 30, {5});
+    m.add_entity(2, 31, {6});
+    std::map<std::array<int, 3>, std::uint32_t> at;
+    auto node = [&](int i, int j, int k) {
+      auto it = at.find({i, j, k});
+      if (it != at.end()) return it->second;
+      double x = 2.0 * i / (Nx * P), y = double(j) / (Ny * P), z = T * k / P;
+      // a gentle bump of the wall along x keeps the elements curved (periodic in y)
+      std::uint32_t id = m.add_node(x, y, z + 0.05 * std::sin(kPi * x) * (1 - double(k) / (2 * P)));
+      return at[{i, j, k}] = id;
+    };
+    const auto& plat = meshflow::model::lattice(Shape::Prism, P);
+    for (int ci = 0; ci < Nx; ++ci)
+      for (int cj = 0; cj < Ny; ++cj) {
+        int i0 = ci * P, i1 = i0 + P, j0 = cj * P, j1 = j0 + P;
+        for (auto tri : {std::array<std::array<int, 2>, 3>{{{i0, j0}, {i1, j0}, {i1, j1}}},
+                         std::array<std::array<int, 2>, 3>{{{i0, j0}, {i1, j1}, {i0, j1}}}}) {
+          std::vector<std::uint32_t> ids;
+          for (auto& l : plat)
+            ids.push_back(node(tri[0][0] + ((tri[1][0] - tri[0][0]) * l[0] + (tri[2][0] - tri[0][0]) * l[1]) / P,
+                               tri[0][1] + ((tri[1][1] - tri[0][1]) * l[0] + (tri[2][1] - tri[0][1]) * l[1]) / P, l[2]));
+          m.block(Shape::Prism, P, 3, kVol).add(ids.data());
+          std::vector<std::uint32_t> w;
+          for (int k : meshflow::model::face_nodes(Shape::Prism, P)[0]) w.push_back(ids[k]);
+          m.block(Shape::Tri, P, 2, kWall).add(w.data());
+        }
+      }
+    for (int side = 0; side < 2; ++side)
+      for (int ci = 0; ci < Nx; ++ci) {
+        std::vector<std::uint32_t> q;
+        for (auto& l : meshflow::model::lattice(Shape::Quad, P)) q.push_back(node(ci * P + l[0], side * Ny * P, l[1]));
+        m.block(Shape::Quad, P, 2, side ? 31 : 30).add(q.data());
+      }
+    meshflow::model::PeriodicLink link;
+    link.dim = 2, link.tag = 31, link.master_tag = 30;
+    for (int i = 0; i <= Nx * P; ++i)
+      for (int k = 0; k <= P; ++k) link.nodes.emplace_back(node(i, Ny * P, k), node(i, 0, k));
+    m.periodic.push_back(link);
+    m.check();
+    REQUIRE(meshflow::model::mesh_stats(m, 1)["invalid"] == 0);
+    Options o;
+    o.layers = 5;
+    o.ratio = 2;
+    auto r = split_mesh(m, o, 2);
+    const Mesh& out = r.mesh;
+    REQUIRE(out.periodic.size() == 1);
+    const auto& pl = out.periodic[0].nodes;
+    CAPTURE(P);
+    CHECK(pl.size() == std::size_t(Nx * P + 1) * (5 * P + 1));
+    CHECK(r.stats.periodic_pairs_added == std::size_t(Nx * P + 1) * (5 * P - 1));
+    double worst = 0;
+    std::set<std::uint32_t> slaves;
+    for (auto [s, mm] : pl) {
+      worst = std::max({worst, std::abs(out.x[s] - out.x[mm]), std::abs(out.y[s] - out.y[mm] - 1.0), std::abs(out.z[s] - out.z[mm])});
+      slaves.insert(s);
+    }
+    CHECK(worst < 1e-12);
+    std::size_t on_hi = 0;
+    for (std::size_t i = 0; i < out.num_nodes(); ++i) on_hi += std::abs(out.y[i] - 1.0) < 1e-14;
+    CHECK(on_hi == slaves.size());
+    CHECK(meshflow::model::mesh_stats(out, 1)["invalid"] == 0);
+  }
+}
