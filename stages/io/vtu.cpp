@@ -5,6 +5,7 @@
 #include "stages/io/reader.hpp"
 #include "stages/model/quality.hpp"
 
+#include <cstdio>
 #include <cstring>
 #include <fstream>
 #include <map>
@@ -43,11 +44,22 @@ void write_vtu(const Mesh& m, const std::filesystem::path& path) {
     int vt = vtk_cell_type(b.shape, b.order);
     const std::vector<int>* perm = vt ? &vtk_to_gmsh(b.shape, b.order) : nullptr;
     if (!vt) vt = 14;  // pyramid of order >= 3: VTK 9.1 has no such cell; its vertices only
+    // File version 1.0 (meshio 5 reads only 0.1/1.0): Lagrange hexahedra are then stored in
+    // VTK's legacy order (vertical edges of vertices 2 and 3 swapped), which VTK >= 9.1
+    // converts on reading (it does so for every file of version < 2.2) and VTK 9.0 reads as is.
+    const bool legacy_hex = vt == 72 && b.order >= 2;
     const Entity* ent = m.find_entity(b.entity_dim, b.entity_tag);
     const int ph = ent && !ent->physicals.empty() ? ent->physicals[0] : 0;
     for (size_t e = 0; e < b.size(); ++e) {
       const std::uint32_t* nd = b.element(e);
-      if (perm)
+      if (perm && legacy_hex) {  // see the file version note below
+        const int pm1 = b.order - 1, vbase = 8 + 8 * pm1;
+        for (int k = 0; k < (int)perm->size(); ++k) {
+          int src = k;
+          if (k >= vbase + 2 * pm1 && k < vbase + 4 * pm1) src = k < vbase + 3 * pm1 ? k + pm1 : k - pm1;
+          conn.push_back(nd[(*perm)[src]]);
+        }
+      } else if (perm)
         for (int k : *perm) conn.push_back(nd[k]);
       else
         for (int k = 0; k < 5; ++k) conn.push_back(nd[k]);
@@ -148,6 +160,18 @@ Mesh read_vtu(const std::filesystem::path& path) {
       if (n != nt) c.fail(std::string("inconsistent counts in cell data ") + name, false, 0);
       std::memcpy(vec->data(), q, 4 * n);
     }
+  // VTK XML files before version 2.2 used the legacy Lagrange hexahedron order, in which
+  // the vertical edges of vertices 2 and 3 come in the other order (VTK 9.1's reader converts
+  // those files the same way; we write 2.2).
+  bool legacy_hex = false;
+  {
+    size_t vf = d.find("<VTKFile");
+    std::string tag = d.substr(vf, d.find('>', vf) - vf);
+    std::string ver = attr(tag, "version");
+    int major = 0, minor = 0;
+    if (!ver.empty() && std::sscanf(ver.c_str(), "%d.%d", &major, &minor) >= 1)
+      legacy_hex = major < 2 || (major == 2 && minor < 2);
+  }
   std::map<std::tuple<int, int, int, int>, size_t> block_of;
   std::int64_t prev = 0;
   for (size_t e = 0; e < nt; ++e) {
@@ -173,9 +197,14 @@ Mesh read_vtu(const std::filesystem::path& path) {
     auto& b = m.blocks[it->second];
     const auto& perm = vtk_to_gmsh(s, order);
     std::vector<std::uint32_t> nodes(b.nodes_per_element(), 0xffffffffu);
+    const int pm1 = order - 1, vbase = 8 + 8 * pm1;  // first vertical-edge node (VTK order)
+    const bool swap_edges = legacy_hex && vt == 72 && order >= 2;
     for (size_t k = 0; k < perm.size(); ++k) {
       std::int64_t id;
-      std::memcpy(&id, cp + 8 * (prev + k), 8);
+      size_t src = k;
+      if (swap_edges && (int)k >= vbase + 2 * pm1 && (int)k < vbase + 4 * pm1)
+        src = (int)k < vbase + 3 * pm1 ? k + pm1 : k - pm1;
+      std::memcpy(&id, cp + 8 * (prev + src), 8);
       if (id < 0 || (std::uint64_t)id >= nn)
         c.fail("cell " + std::to_string(e) + " refers to point " + std::to_string(id) + " (out of range)", true, (cp - d.data()) + 8 * (prev + k));
       nodes[perm[k]] = (std::uint32_t)id;
