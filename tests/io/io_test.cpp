@@ -255,16 +255,17 @@ TEST_CASE("Gmsh and meshio load every MSH/VTU we write with the same counts") {
   CHECK(i == expect.size());
 }
 
-TEST_CASE("on Gmsh-made curved tet meshes our invalid set equals Gmsh's AnalyseMeshQuality set") {
+TEST_CASE("on Gmsh-made curved tet meshes our invalid set equals Gmsh's AnalyseMeshQuality set (non-empty)") {
   for (int order : {2, 4}) {
     auto f = tmpdir() / ("sphere" + std::to_string(order) + ".msh");
     auto res = tmpdir() / ("gmshbad" + std::to_string(order) + ".txt");
     std::string script =
         "import gmsh\ngmsh.initialize()\ngmsh.option.setNumber('General.Terminal',0)\n"
         "gmsh.option.setNumber('General.AbortOnError',0)\n"
-        "gmsh.model.occ.addBox(-1,-1,-1,2,2,2)\ngmsh.model.occ.addSphere(0,0,0,0.6)\n"
+        "gmsh.model.occ.addBox(-1,-1,-1,2,2,2)\ngmsh.model.occ.addSphere(0,0,0,0.2)\n"
         "gmsh.model.occ.cut([(3,1)],[(3,2)])\ngmsh.model.occ.synchronize()\n"
-        "gmsh.option.setNumber('Mesh.MeshSizeMax',0.45)\ngmsh.option.setNumber('Mesh.HighOrderOptimize',0)\n"
+        "gmsh.option.setNumber('Mesh.MeshSizeMax',0.8)\ngmsh.option.setNumber('Mesh.MeshSizeFromCurvature',0)\n"
+        "gmsh.option.setNumber('Mesh.HighOrderOptimize',0)\n"
         "gmsh.model.mesh.generate(3)\ngmsh.model.mesh.setOrder(" + std::to_string(order) + ")\n"
         "gmsh.write('" + f.string() + "')\n"
         "gmsh.plugin.setNumber('AnalyseMeshQuality','JacobianDeterminant',1)\n"
@@ -284,14 +285,21 @@ TEST_CASE("on Gmsh-made curved tet meshes our invalid set equals Gmsh's AnalyseM
     Mesh m = io::read_mesh(f);
     auto q = mesh_quality(m);
     std::set<std::uint64_t> ours, theirs;
-    for (size_t b = 0; b < m.blocks.size(); ++b)
+    std::uint64_t running = 0;  // element tags are implicit (running index + 1) when the file's are
+    for (size_t b = 0; b < m.blocks.size(); ++b) {
       for (size_t e = 0; e < q[b].size(); ++e)
-        if (!q[b][e].valid) ours.insert(m.blocks[b].tags.empty() ? 0 : m.blocks[b].tags[e]);
+        if (!q[b][e].valid) ours.insert(m.blocks[b].tags.empty() ? running + e + 1 : m.blocks[b].tags[e]);
+      running += m.blocks[b].size();
+    }
     std::ifstream in(res);
     std::uint64_t t;
     while (in >> t) theirs.insert(t);
     INFO("order " << order << ": ours " << ours.size() << ", Gmsh " << theirs.size());
-    CHECK(ours == theirs);  // (with this sizing Gmsh's plain setOrder left no inverted tet)
+    // a small sphere (radius 0.2) in tets sized for the box (up to 0.8): the curved boundary
+    // edges and faces push through the thin tets around the sphere; Gmsh 4.8 leaves 3 (P=2)
+    // and 13 (P=4) of ~1200 tets inverted
+    CHECK(!theirs.empty());
+    CHECK(ours == theirs);
   }
 }
 
