@@ -581,6 +581,8 @@ Result split_mesh(const Mesh& in, const Options& opt, int threads) {
       if (dirs_of(macros[i])[1 + d]) tmin = std::min(tmin, thick[i][d]), tmax = std::max(tmax, thick[i][d]);
   st.thickness_min = tmin, st.thickness_max = tmax;
   double ratio = opt.ratio;
+  if (opt.first_height > 0 && !(tmax > 0))
+    throw StageError("split: first_height is given but the stacks have no thickness");
   if (opt.first_height > 0) {
     ratio = ratio_for_first_fraction(opt.layers, opt.first_height / tmax);
     st.ratio_from_first_height = true;
