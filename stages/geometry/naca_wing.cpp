@@ -13,6 +13,7 @@
 #include "engine/stage.hpp"
 #include "stages/cad/cad.hpp"
 #include "stages/cad/occt.hpp"
+#include "stages/cad/tag_rules.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -237,6 +238,7 @@ void run(StageContext& ctx) {
                      "\"; try other span/far-field parameters (and report it: this is a bug)");
   auto tags = cad::occt::tags_by_box(fluid, 1e-6 * c);
   cad::Shape shape = cad::occt::make_shape(fluid, units, tags);
+  cad::apply_tag_rules(shape, P.at("tag_overrides"), "naca_wing stage '" + ctx.stage_name() + "'");
   auto& st = ctx.stats();
   st = cad::occt::summarize(shape);
   st["profile_exact"] = n.m == 0;

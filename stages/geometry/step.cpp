@@ -3,6 +3,7 @@
 #include "engine/stage.hpp"
 #include "stages/cad/cad.hpp"
 #include "stages/cad/occt.hpp"
+#include "stages/cad/tag_rules.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -195,6 +196,7 @@ void run(StageContext& ctx) {
   st["bbox_diagonal"] = diag;
   if (shape.num_faces() == 0)
     throw StageError("geometry file '" + path.string() + "' holds no faces (only wires or points?): nothing to mesh");
+  cad::apply_tag_rules(shape, P.at("tag_overrides"), "step stage '" + ctx.stage_name() + "'");
   shape.save(ctx.output("shape", "shape"));
   ctx.progress(1.0, "done");
 }

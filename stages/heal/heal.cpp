@@ -17,6 +17,7 @@
 #include "engine/stage.hpp"
 #include "stages/cad/cad.hpp"
 #include "stages/cad/occt.hpp"
+#include "stages/cad/tag_rules.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -384,6 +385,8 @@ void run(StageContext& ctx) {
                      " (slivers that cannot be meshed)" + (small_faces ? " and fix_small_faces could not remove them:" : ":") +
                      sliver_msg + "\nMerge or remove them in the CAD" +
                      (small_faces ? std::string(".") : std::string(", or set fix_small_faces: true.")));
+  cad::apply_tag_rules(out, P.at("tag_overrides"), src);
+  for (int f = 0; f < out.num_faces(); ++f) tags[f] = out.face_tag(f);
   if (tags.end() != std::find(tags.begin(), tags.end(), Tag::none)) {
     int nnone = (int)std::count(tags.begin(), tags.end(), Tag::none);
     ctx.log("heal: warning: " + std::to_string(nnone) + " face(s) have no tag");
@@ -395,6 +398,7 @@ void run(StageContext& ctx) {
   st["volume"] = summary["volume"];
   st["area"] = summary["area"];
   st["face_tags"] = summary["face_tags"];
+  st["tag_overrides"] = (int)P.at("tag_overrides").size();
   st["watertight"] = true;
   out.save(ctx.output("shape", "shape"));
   ctx.progress(1.0, "done");
