@@ -1,0 +1,111 @@
+// meshflow shell — self-intersection check of the sampled shell surface with CGAL's AABB tree.
+// The only translation unit of stages/shell that includes CGAL (no OCCT anywhere here).
+#include "stages/shell/shell.hpp"
+
+#include <CGAL/AABB_traits.h>
+#include <CGAL/AABB_tree.h>
+#include <CGAL/AABB_triangle_primitive.h>
+#include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
+#include <CGAL/intersections.h>
+#include <CGAL/Constrained_Delaunay_triangulation_2.h>
+#include <CGAL/Triangulation_vertex_base_with_info_2.h>
+#include <CGAL/Constrained_triangulation_face_base_2.h>
+#include <stdexcept>
+
+#include <algorithm>
+#include <vector>
+
+namespace meshflow::shell {
+
+namespace {
+using K = CGAL::Exact_predicates_inexact_constructions_kernel;
+using Tri = K::Triangle_3;
+using Iter = std::vector<Tri>::const_iterator;
+using Prim = CGAL::AABB_triangle_primitive<K, Iter>;
+using Tree = CGAL::AABB_tree<CGAL::AABB_traits<K, Prim>>;
+}  // namespace
+
+// Every pair of triangles that do not share a vertex index and intersect (exact predicate,
+// CGAL::do_intersect on Triangle_3 with filtered exact predicates). Degenerate triangles are
+// skipped. Deterministic: pairs are reported in (i, j) order, i < j.
+IntersectionReport self_intersections(const std::vector<Vec3>& points,
+                                      const std::vector<std::array<std::int32_t, 3>>& tris) {
+  IntersectionReport rep;
+  std::vector<Tri> T;
+  std::vector<int> id;
+  T.reserve(tris.size());
+  for (std::size_t i = 0; i < tris.size(); ++i) {
+    auto& t = tris[i];
+    K::Point_3 a(points[t[0]][0], points[t[0]][1], points[t[0]][2]);
+    K::Point_3 b(points[t[1]][0], points[t[1]][1], points[t[1]][2]);
+    K::Point_3 c(points[t[2]][0], points[t[2]][1], points[t[2]][2]);
+    Tri tr(a, b, c);
+    if (tr.is_degenerate()) continue;
+    T.push_back(tr);
+    id.push_back(static_cast<int>(i));
+  }
+  if (T.empty()) return rep;
+  Tree tree(T.begin(), T.end());
+  tree.accelerate_distance_queries();
+  std::vector<Prim::Id> hits;
+  for (std::size_t k = 0; k < T.size(); ++k) {
+    hits.clear();
+    tree.all_intersected_primitives(T[k], std::back_inserter(hits));
+    std::vector<int> js;
+    for (auto h : hits) {
+      std::size_t j = static_cast<std::size_t>(h - T.cbegin());
+      if (j <= k) continue;
+      auto& a = tris[id[k]];
+      auto& b = tris[id[j]];
+      bool share = false;
+      for (int x : a)
+        for (int y : b) share |= x == y;
+      if (share) continue;
+      js.push_back(static_cast<int>(j));
+    }
+    std::sort(js.begin(), js.end());
+    for (int j : js) {
+      if (rep.pairs == 0) {
+        auto& a = tris[id[k]];
+        for (int c = 0; c < 3; ++c)
+          rep.first[c] = (points[a[0]][c] + points[a[1]][c] + points[a[2]][c]) / 3;
+      }
+      ++rep.pairs;
+      if (rep.examples.size() < 10) rep.examples.push_back({id[k], id[j]});
+    }
+  }
+  return rep;
+}
+
+std::vector<std::array<std::int32_t, 3>> cdt2(const std::vector<std::array<double, 2>>& points,
+                                              const std::vector<std::array<std::int32_t, 2>>& segments) {
+  using Vb = CGAL::Triangulation_vertex_base_with_info_2<std::int32_t, K>;
+  using Fb = CGAL::Constrained_triangulation_face_base_2<K>;
+  using Tds = CGAL::Triangulation_data_structure_2<Vb, Fb>;
+  using CDT = CGAL::Constrained_Delaunay_triangulation_2<K, Tds, CGAL::Exact_predicates_tag>;
+  CDT cdt;
+  std::vector<CDT::Vertex_handle> vh(points.size());
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    vh[i] = cdt.insert(K::Point_2(points[i][0], points[i][1]));
+    if (vh[i]->info() == 0 && vh[i]->point() == K::Point_2(points[i][0], points[i][1]) && i > 0) {
+      // a fresh vertex has info 0 (default): set it; a duplicate keeps the first index
+    }
+  }
+  // assign indices in input order, keeping the first index for duplicates
+  for (auto v = cdt.finite_vertices_begin(); v != cdt.finite_vertices_end(); ++v) v->info() = -1;
+  for (std::size_t i = 0; i < points.size(); ++i)
+    if (vh[i]->info() < 0) vh[i]->info() = static_cast<std::int32_t>(i);
+  try {
+    for (auto& s : segments)
+      if (vh[s[0]] != vh[s[1]]) cdt.insert_constraint(vh[s[0]], vh[s[1]]);
+  } catch (const std::exception& e) {
+    throw std::runtime_error(std::string("constrained Delaunay triangulation failed: ") + e.what());
+  }
+  std::vector<std::array<std::int32_t, 3>> out;
+  for (auto f = cdt.finite_faces_begin(); f != cdt.finite_faces_end(); ++f)
+    out.push_back({f->vertex(0)->info(), f->vertex(1)->info(), f->vertex(2)->info()});
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+}  // namespace meshflow::shell

@@ -1,0 +1,864 @@
+// meshflow stage kind `shell` (paper §III.C): thickness and sweep-direction fields on the walls
+// bounded by the medial object, the near-field block structure (prism sweep per wall face,
+// hex junction blocks at concave edges for topology C) and a sampled shell surface with its
+// checks. Method and artifact: stages/shell/shell.hpp. No CGAL, no OCCT header here.
+#include "engine/stage.hpp"
+#include "stages/cad/cad.hpp"
+#include "stages/medial/medial.hpp"
+#include "stages/shell/shell.hpp"
+
+#include <CGAL/version_macros.h>  // version string only (no CGAL code)
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <map>
+#include <numeric>
+#include <queue>
+#include <set>
+#include <sstream>
+
+namespace meshflow::shell {
+namespace {
+
+// ── small vector helpers ──
+Vec3 v3(const cad::Vec3& a) { return {a.x, a.y, a.z}; }
+cad::Vec3 cv(const Vec3& a) { return {a[0], a[1], a[2]}; }
+Vec3 add(Vec3 a, Vec3 b) { return {a[0] + b[0], a[1] + b[1], a[2] + b[2]}; }
+Vec3 sub(Vec3 a, Vec3 b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
+Vec3 mul(Vec3 a, double s) { return {a[0] * s, a[1] * s, a[2] * s}; }
+double dot(Vec3 a, Vec3 b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+Vec3 cross(Vec3 a, Vec3 b) { return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]}; }
+double norm(Vec3 a) { return std::sqrt(dot(a, a)); }
+Vec3 unit(Vec3 a) {
+  double l = norm(a);
+  return l > 1e-300 ? mul(a, 1 / l) : Vec3{0, 0, 0};
+}
+double smoothstep(double x) {
+  x = std::clamp(x, 0.0, 1.0);
+  return x * x * (3 - 2 * x);
+}
+std::string fmt(Vec3 p) {
+  std::ostringstream o;
+  o.precision(6);
+  o << "(" << p[0] << ", " << p[1] << ", " << p[2] << ")";
+  return o.str();
+}
+double now() { return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count(); }
+
+enum class EdgeKind { none, seam, wall_wall, wall_other };
+
+struct EdgeInfo {
+  EdgeKind kind = EdgeKind::none;
+  int a = -1, b = -1;        // wall face A; B (wall or other); seam: a only
+  double fluid_angle = 180;  // degrees, through the fluid
+  bool concave = false, junction = false;
+  double sign_a = 1, sign_b = 1;  // m_X = sign_X * unit(T x n_X) points into face X
+  // stations
+  std::vector<double> t;           // parameters
+  std::vector<Vec3> p;             // points
+  std::vector<double> arc;         // cumulative length
+  std::vector<std::map<int, cad::Vec2>> uv;  // per station, per face
+  std::vector<std::map<int, Vec3>> nu;       // fluid normals per face
+  std::vector<Vec3> ma, mb;                  // in-face directions
+  std::vector<double> th;                    // thickness
+  std::vector<int> sides;                    // faces with a field (ascending)
+  std::map<int, std::vector<Vec3>> dir;      // per side
+  int v0 = -1, v1 = -1;
+};
+
+struct Stage {
+  StageContext& ctx;
+  const nlohmann::json& P;
+  cad::Shape shape;
+  medial::MedialObject M;
+  int nf = 0, ne = 0, nv = 0;
+  std::vector<char> wall;
+  std::set<cad::Tag> junction_with;
+  bool topo_c = true;
+  double T = 0, alpha = 0.5, grad = 0.3, h = 0, blend = 2, junction_angle = 150, Lref = 0;
+  int max_grid = 200;
+  std::vector<EdgeInfo> E;
+  std::vector<std::vector<int>> treated_nbrs;  // faces joined to f by a concave treated edge
+  // wall samples
+  std::vector<int> ws;              // indices into M.samples
+  std::vector<double> ws_a, ws_t;   // allowed, smoothed thickness
+  std::unique_ptr<medial::NearestIndex> ws_index;
+  // vertices
+  std::vector<char> v_has;
+  std::vector<double> v_t;
+  std::vector<Vec3> v_d;
+  // face grids
+  std::map<int, FaceGrid> grids;
+
+  Stage(StageContext& c) : ctx(c), P(c.params()) {}
+
+  Vec3 fluid_normal(int f, double u, double v) const {
+    Vec3 n = v3(shape.face_normal(f, u, v));
+    if (norm(n) < 0.5) {  // singular point: step towards the middle of the bounds
+      auto b = shape.face_uv_bounds(f);
+      double uc = 0.5 * (b.u0 + b.u1), vc = 0.5 * (b.v0 + b.v1);
+      for (double s = 1e-6; s < 0.2 && norm(n) < 0.5; s *= 4) n = v3(shape.face_normal(f, u + s * (uc - u), v + s * (vc - v)));
+    }
+    return mul(n, -1.0);
+  }
+
+  // ── 1. edges: classification and stations ──
+  void classify_edges() {
+    E.resize(ne);
+    for (int e = 0; e < ne; ++e) {
+      EdgeInfo& I = E[e];
+      if (shape.edge_degenerate(e)) continue;
+      auto fs = shape.edge_faces(e);
+      std::vector<int> wf;
+      for (int f : fs)
+        if (wall[f]) wf.push_back(f);
+      if (wf.empty()) continue;
+      if (fs.size() == 1) {
+        if (!shape.edge_is_seam(e, fs[0])) continue;
+        I.kind = EdgeKind::seam, I.a = fs[0];
+      } else if (fs.size() == 2) {
+        if (wf.size() == 2) I.kind = EdgeKind::wall_wall, I.a = fs[0], I.b = fs[1];
+        else I.kind = EdgeKind::wall_other, I.a = wf[0], I.b = fs[0] == wf[0] ? fs[1] : fs[0];
+      } else {
+        continue;  // non-manifold: heal refuses these; nothing to do here
+      }
+      auto r = shape.edge_range(e);
+      double len = shape.edge_length(e);
+      int n = std::clamp(static_cast<int>(std::ceil(len / h)) + 1, 3, 4001);
+      auto ends = shape.edge_vertices(e);
+      I.v0 = ends[0], I.v1 = ends[1];
+      std::vector<int> faces = {I.a};
+      if (I.b >= 0) faces.push_back(I.b);
+      for (int k = 0; k < n; ++k) {
+        double t = r.lo + (r.hi - r.lo) * k / (n - 1);
+        I.t.push_back(t);
+        I.p.push_back(v3(shape.edge_point(e, t)));
+        I.arc.push_back(k == 0 ? 0 : I.arc.back() + norm(sub(I.p[k], I.p[k - 1])));
+        std::map<int, cad::Vec2> uv;
+        std::map<int, Vec3> nn;
+        for (int f : faces) {
+          uv[f] = shape.edge_uv(e, f, t);
+          nn[f] = fluid_normal(f, uv[f].u, uv[f].v);
+        }
+        I.uv.push_back(uv);
+        I.nu.push_back(nn);
+      }
+      if (I.kind == EdgeKind::seam) continue;
+      // in-face directions perpendicular to the edge; the sign is decided at the middle station
+      auto tangent = [&](int k) { return unit(v3(shape.edge_eval(e, I.t[k]).d1)); };
+      auto side_sign = [&](int f) {
+        int k = n / 2;
+        Vec3 c = unit(cross(tangent(k), I.nu[k][f]));
+        auto d = shape.face_eval(f, I.uv[k][f].u, I.uv[k][f].v);
+        Vec3 su = v3(d.du), sv = v3(d.dv);
+        double a11 = dot(su, su), a12 = dot(su, sv), a22 = dot(sv, sv), b1 = dot(su, c), b2 = dot(sv, c);
+        double det = a11 * a22 - a12 * a12;
+        double step = std::min(1e-3 * len, 0.25 * h);
+        if (std::abs(det) > 0) {
+          double du = (a22 * b1 - a12 * b2) / det, dv = (a11 * b2 - a12 * b1) / det;
+          bool plus = shape.face_contains_uv(f, I.uv[k][f].u + step * du, I.uv[k][f].v + step * dv, 1e-12);
+          bool minus = shape.face_contains_uv(f, I.uv[k][f].u - step * du, I.uv[k][f].v - step * dv, 1e-12);
+          if (plus != minus) return plus ? 1.0 : -1.0;
+        }
+        auto bx = shape.face_box(f);
+        Vec3 mid = mul(add(v3(bx.lo), v3(bx.hi)), 0.5);
+        return dot(sub(mid, I.p[k]), c) >= 0 ? 1.0 : -1.0;
+      };
+      I.sign_a = side_sign(I.a);
+      I.sign_b = side_sign(I.b);
+      for (int k = 0; k < n; ++k) {
+        Vec3 T = tangent(k);
+        I.ma.push_back(mul(unit(cross(T, I.nu[k][I.a])), I.sign_a));
+        I.mb.push_back(mul(unit(cross(T, I.nu[k][I.b])), I.sign_b));
+      }
+      int k = n / 2;
+      double c = std::clamp(dot(I.ma[k], I.mb[k]), -1.0, 1.0);
+      double a0 = std::acos(c) * 180 / M_PI;
+      I.concave = dot(I.nu[k][I.a], I.mb[k]) > 1e-9;
+      I.fluid_angle = I.concave ? a0 : 360 - a0;
+      I.junction = topo_c && I.concave && I.fluid_angle < junction_angle && junction_with.count(shape.face_tag(I.b));
+      if (I.concave) {
+        treated_nbrs[I.a].push_back(I.b);
+        treated_nbrs[I.b].push_back(I.a);
+      }
+    }
+    for (auto& v : treated_nbrs) {
+      std::sort(v.begin(), v.end());
+      v.erase(std::unique(v.begin(), v.end()), v.end());
+    }
+  }
+
+  std::vector<std::vector<int>> face_edges_cache;
+  static double dist_to_polyline(const std::vector<Vec3>& p, const Vec3& x) {
+    double best = INFINITY;
+    for (std::size_t k = 0; k + 1 < p.size(); ++k) {
+      Vec3 ab = sub(p[k + 1], p[k]);
+      double l2 = dot(ab, ab);
+      double s = l2 > 0 ? std::clamp(dot(sub(x, p[k]), ab) / l2, 0.0, 1.0) : 0.0;
+      best = std::min(best, norm(sub(x, add(p[k], mul(ab, s)))));
+    }
+    return best;
+  }
+  // ── 2. thickness on the wall samples ──
+  long corner_balls = 0, limited_samples = 0;
+  double lim_min = INFINITY;
+  Vec3 lim_at{};
+  void sample_thickness() {
+    for (std::size_t i = 0; i < M.samples.size(); ++i) {
+      auto& s = M.samples[i];
+      bool onwall = false;
+      for (int f : s.faces)
+        if (f >= 0 && f < nf && wall[f]) onwall = true;
+      if (onwall) ws.push_back(static_cast<int>(i));
+    }
+    if (ws.empty())
+      throw StageError("shell: the medial object has no sample on a wall face; was it computed from the same shape "
+                       "(needs: [heal, medial] with medial after heal)?");
+    std::vector<medial::Vec3> pts;
+    for (int i : ws) pts.push_back(M.samples[i].p);
+    ws_index = std::make_unique<medial::NearestIndex>(pts);
+    ws_a.assign(ws.size(), T);
+    double best_allowed = 0;
+    for (std::size_t k = 0; k < ws.size(); ++k) {
+      const auto& s = M.samples[ws[k]];
+      const auto& si = M.info[ws[k]];
+      double a = T;
+      if (si.r_in >= 0 && si.pole_in >= 0) {
+        // a corner ball: its centre lies in the corner region of a treated concave edge of the
+        // sample's face (within 2 r / sin(angle/2) of the edge: the bisector distance of a ball
+        // of radius r tangent to both faces, doubled); its radius goes to 0 at the edge by
+        // construction and the topology (junction, slide, averaged normals) handles it
+        const auto& mp = M.points[si.pole_in];
+        bool corner = false;
+        for (int f : s.faces) {
+          if (f < 0 || corner) continue;
+          for (int e : face_edges_cache[f]) {
+            const EdgeInfo& I = E[e];
+            if (!I.concave || I.fluid_angle > 170 || I.p.size() < 2) continue;
+            double reach = 2 * mp.radius / std::sin(I.fluid_angle * M_PI / 360) + 0.5 * h;
+            if (dist_to_polyline(I.p, mp.c) <= reach) { corner = true; break; }
+          }
+        }
+        if (corner) ++corner_balls;
+        else a = std::min(T, alpha * si.r_in);
+      }
+      ws_a[k] = a;
+      best_allowed = std::max(best_allowed, a);
+      if (a < T * (1 - 1e-12)) {
+        ++limited_samples;
+        if (a < lim_min) lim_min = a, lim_at = s.p;
+      }
+    }
+    if (best_allowed < T * (1 - 1e-12)) {
+      std::ostringstream o;
+      o << "shell: the requested thickness " << T << " is larger than the fluid domain can hold at every wall sample "
+        << "(the largest alpha x medial radius is " << best_allowed << " with alpha = " << alpha
+        << "); use a thickness of at most " << best_allowed << " (or increase alpha, at most 1)";
+      throw StageError(o.str());
+    }
+    // Lipschitz smoothing on the kNN graph of wall samples sharing a face (Dijkstra)
+    ws_t = ws_a;
+    const int K = 10;
+    std::vector<std::vector<std::pair<int, double>>> adj(ws.size());
+    for (std::size_t k = 0; k < ws.size(); ++k) {
+      auto nb = ws_index->nearest(M.samples[ws[k]].p, K + 1);
+      for (auto [j, d] : nb) {
+        if (j == static_cast<int>(k)) continue;
+        bool share = false;
+        for (int f : M.samples[ws[k]].faces)
+          for (int g : M.samples[ws[j]].faces) share |= f >= 0 && f == g;
+        if (!share) continue;
+        adj[k].push_back({j, d});
+        adj[j].push_back({static_cast<int>(k), d});
+      }
+    }
+    using Q = std::pair<double, int>;
+    std::priority_queue<Q, std::vector<Q>, std::greater<Q>> q;
+    for (std::size_t k = 0; k < ws.size(); ++k) q.push({ws_t[k], static_cast<int>(k)});
+    while (!q.empty()) {
+      auto [t, k] = q.top();
+      q.pop();
+      if (t > ws_t[k]) continue;
+      for (auto [j, d] : adj[k])
+        if (t + grad * d < ws_t[j]) {
+          ws_t[j] = t + grad * d;
+          q.push({ws_t[j], j});
+        }
+    }
+  }
+
+  // thickness at a wall point on one of `faces`: min_j (t_j + g |x - x_j|) over nearby samples
+  double thickness_at(const Vec3& x, const std::vector<int>& faces) const {
+    for (int k : {24, 96, 400}) {
+      auto nb = ws_index->nearest(x, k);
+      double t = INFINITY;
+      for (auto [j, d] : nb) {
+        bool ok = false;
+        for (int f : M.samples[ws[j]].faces)
+          for (int g : faces) ok |= f >= 0 && f == g;
+        if (ok) t = std::min(t, ws_t[j] + grad * d);
+      }
+      if (std::isfinite(t)) return std::min(t, T);
+    }
+    auto nb = ws_index->nearest(x, 1);
+    return std::min(T, ws_t[nb[0].first] + grad * nb[0].second);
+  }
+
+  // ── 3. edge fields ──
+  void edge_fields() {
+    for (int e = 0; e < ne; ++e) {
+      EdgeInfo& I = E[e];
+      if (I.kind == EdgeKind::none) continue;
+      std::vector<int> wf = {I.a};
+      if (I.kind == EdgeKind::wall_wall) wf.push_back(I.b);
+      std::sort(wf.begin(), wf.end());
+      const std::size_t n = I.t.size();
+      I.th.resize(n);
+      for (std::size_t k = 0; k < n; ++k) I.th[k] = thickness_at(I.p[k], wf);
+      if (I.kind == EdgeKind::seam) {
+        I.sides = {I.a};
+        for (std::size_t k = 0; k < n; ++k) I.dir[I.a].push_back(I.nu[k][I.a]);
+      } else if (I.kind == EdgeKind::wall_other) {
+        I.sides = {I.a};
+        for (std::size_t k = 0; k < n; ++k) {
+          Vec3 na = I.nu[k][I.a];
+          Vec3 pr = mul(I.mb[k], dot(na, I.mb[k]));  // the fluid normal projected on B's tangent plane
+          I.dir[I.a].push_back(norm(pr) > 0.2 ? unit(pr) : na);
+        }
+      } else if (I.junction) {
+        I.sides = wf;
+        for (std::size_t k = 0; k < n; ++k) {
+          I.dir[I.a].push_back(I.mb[k]);
+          I.dir[I.b].push_back(I.ma[k]);
+        }
+      } else {
+        I.sides = {wf[0]};
+        for (std::size_t k = 0; k < n; ++k) I.dir[wf[0]].push_back(unit(add(I.nu[k][I.a], I.nu[k][I.b])));
+      }
+    }
+    // vertices: mean of the edges' end values, projected on the non-wall faces there
+    v_has.assign(nv, 0);
+    v_t.assign(nv, INFINITY);
+    v_d.assign(nv, Vec3{0, 0, 0});
+    std::vector<std::vector<Vec3>> other_normals(nv);
+    for (int e = 0; e < ne; ++e) {
+      EdgeInfo& I = E[e];
+      if (I.kind == EdgeKind::none) continue;
+      for (int end = 0; end < 2; ++end) {
+        int v = end ? I.v1 : I.v0;
+        if (v < 0) continue;
+        std::size_t k = end ? I.t.size() - 1 : 0;
+        v_has[v] = 1;
+        v_t[v] = std::min(v_t[v], I.th[k]);
+        for (auto& [f, d] : I.dir) v_d[v] = add(v_d[v], d[k]);
+        if (I.kind == EdgeKind::wall_other) other_normals[v].push_back(I.nu[k][I.b]);
+      }
+    }
+    for (int v = 0; v < nv; ++v) {
+      if (!v_has[v]) continue;
+      Vec3 d = unit(v_d[v]);
+      for (int it = 0; it < 3; ++it)
+        for (auto& n : other_normals[v]) d = unit(sub(d, mul(n, dot(d, n))));
+      v_d[v] = d;
+    }
+    // blend the edge fields into the vertex values near their ends
+    for (int e = 0; e < ne; ++e) {
+      EdgeInfo& I = E[e];
+      if (I.kind == EdgeKind::none) continue;
+      const std::size_t n = I.t.size();
+      double L = I.arc.back();
+      for (int end = 0; end < 2; ++end) {
+        int v = end ? I.v1 : I.v0;
+        if (v < 0 || !v_has[v]) continue;
+        double R = blend * v_t[v];
+        for (std::size_t k = 0; k < n; ++k) {
+          double a = end ? L - I.arc[k] : I.arc[k];
+          double beta = R > 0 ? smoothstep(1 - a / R) : (a == 0 ? 1.0 : 0.0);
+          if (a == 0) beta = 1;
+          if (beta <= 0) continue;
+          for (auto& [f, d] : I.dir) d[k] = unit(add(mul(d[k], 1 - beta), mul(v_d[v], beta)));
+          if (a == 0) I.th[k] = v_t[v];
+        }
+      }
+    }
+  }
+
+  // ── 4. face grids ──
+  void face_grids() {
+    int done = 0, nw = 0;
+    for (int f = 0; f < nf; ++f) nw += wall[f];
+    for (int f = 0; f < nf; ++f) {
+      if (!wall[f]) continue;
+      ctx.progress(0.3 + 0.4 * done++ / std::max(nw, 1), "field grid of face " + std::to_string(f));
+      auto b = shape.face_uv_bounds(f);
+      // 3D extents along u and v
+      double Lu = 0, Lv = 0;
+      for (int s = 0; s < 3; ++s) {
+        double vv = b.v0 + (b.v1 - b.v0) * (s + 0.5) / 3, uu = b.u0 + (b.u1 - b.u0) * (s + 0.5) / 3, lu = 0, lv = 0;
+        Vec3 pu = v3(shape.face_point(f, b.u0, vv)), pv = v3(shape.face_point(f, uu, b.v0));
+        for (int k = 1; k <= 32; ++k) {
+          Vec3 qu = v3(shape.face_point(f, b.u0 + (b.u1 - b.u0) * k / 32, vv));
+          Vec3 qv = v3(shape.face_point(f, uu, b.v0 + (b.v1 - b.v0) * k / 32));
+          lu += norm(sub(qu, pu)), lv += norm(sub(qv, pv));
+          pu = qu, pv = qv;
+        }
+        Lu = std::max(Lu, lu), Lv = std::max(Lv, lv);
+      }
+      FaceGrid G;
+      G.face = f, G.u0 = b.u0, G.u1 = b.u1, G.v0 = b.v0, G.v1 = b.v1;
+      G.nu = std::clamp(static_cast<int>(std::ceil(Lu / h)) + 1, 3, max_grid);
+      G.nv = std::clamp(static_cast<int>(std::ceil(Lv / h)) + 1, 3, max_grid);
+      G.data.resize(std::size_t(G.nu) * G.nv * 4);
+      // the face's edges with their side values
+      struct Near {
+        const EdgeInfo* I;
+        const std::vector<Vec3>* d;
+      };
+      std::vector<Near> edges;
+      for (int e : shape.face_edges(f)) {
+        const EdgeInfo& I = E[e];
+        if (I.kind == EdgeKind::none || I.kind == EdgeKind::seam) continue;
+        auto it = I.dir.find(f);
+        if (it == I.dir.end()) it = I.dir.begin();
+        edges.push_back({&I, &it->second});
+      }
+      for (int j = 0; j < G.nv; ++j)
+        for (int i = 0; i < G.nu; ++i) {
+          double u = G.u0 + (G.u1 - G.u0) * i / (G.nu - 1), v = G.v0 + (G.v1 - G.v0) * j / (G.nv - 1);
+          Vec3 x = v3(shape.face_point(f, u, v));
+          Vec3 nrm = fluid_normal(f, u, v);
+          double t = thickness_at(x, {f});
+          double B = 0;
+          Vec3 de{0, 0, 0};
+          for (auto& ne_ : edges) {
+            const EdgeInfo& I = *ne_.I;
+            // nearest point of the station polyline
+            double best = INFINITY;
+            std::size_t bk = 0;
+            double bs = 0;
+            for (std::size_t k = 0; k + 1 < I.p.size(); ++k) {
+              Vec3 a = I.p[k], ab = sub(I.p[k + 1], a);
+              double l2 = dot(ab, ab);
+              double s = l2 > 0 ? std::clamp(dot(sub(x, a), ab) / l2, 0.0, 1.0) : 0.0;
+              double dd = norm(sub(x, add(a, mul(ab, s))));
+              if (dd < best) best = dd, bk = k, bs = s;
+            }
+            double te = (1 - bs) * I.th[bk] + bs * I.th[bk + 1];
+            Vec3 dk = unit(add(mul((*ne_.d)[bk], 1 - bs), mul((*ne_.d)[bk + 1], bs)));
+            double dist = I.junction ? std::max(0.0, best - te) : best;
+            double R = blend * std::max(te, 1e-300);
+            double beta = smoothstep(1 - dist / R);
+            if (beta <= 0) continue;
+            B = std::max(B, beta);
+            de = add(de, mul(dk, beta));
+          }
+          Vec3 d = nrm;
+          if (B > 0) d = unit(add(mul(nrm, 1 - B), mul(unit(de), B)));
+          double* q = &G.data[(std::size_t(j) * G.nu + i) * 4];
+          q[0] = t, q[1] = d[0], q[2] = d[1], q[3] = d[2];
+        }
+      grids[f] = std::move(G);
+    }
+  }
+
+  std::pair<double, Vec3> grid_at(int f, double u, double v) const {
+    ShellData tmp;  // reuse the reader's interpolation on one grid
+    tmp.faces.push_back(grids.at(f));
+    return tmp.face_field(f, u, v);
+  }
+
+  // ── 5. sampled shell surface ──
+  ShellData out;
+  long faces_unsampled = 0;
+  std::vector<std::string> unsampled_why;
+  std::vector<std::vector<int>> point_faces;  // non-wall faces each shell point slides on
+  void sample_surface() {
+    // ids: vertex -> id, (edge, station, side) -> id
+    std::map<int, int> vid;
+    std::map<std::tuple<int, int, int>, int> eid;
+    auto add_point = [&](Vec3 wallp, Vec3 shellp, std::vector<int> slide) {
+      out.shell_wall.push_back(wallp);
+      out.shell_points.push_back(shellp);
+      point_faces.push_back(std::move(slide));
+      return static_cast<int>(out.shell_points.size() - 1);
+    };
+    auto vertex_id = [&](int v) {
+      auto it = vid.find(v);
+      if (it != vid.end()) return it->second;
+      Vec3 x = v3(shape.vertex_point(v));
+      std::vector<int> slide;
+      for (int e = 0; e < ne; ++e)
+        if (E[e].kind == EdgeKind::wall_other && (E[e].v0 == v || E[e].v1 == v)) slide.push_back(E[e].b);
+      int id = add_point(x, add(x, mul(v_d[v], v_t[v])), slide);
+      vid[v] = id;
+      return id;
+    };
+    auto station_id = [&](int e, int k, int f) {
+      const EdgeInfo& I = E[e];
+      int n = static_cast<int>(I.t.size());
+      if (k == 0 && I.v0 >= 0 && v_has[I.v0]) return vertex_id(I.v0);
+      if (k == n - 1 && I.v1 >= 0 && v_has[I.v1]) return vertex_id(I.v1);
+      int side = I.dir.count(f) ? f : I.dir.begin()->first;
+      auto key = std::make_tuple(e, k, side);
+      auto it = eid.find(key);
+      if (it != eid.end()) return it->second;
+      std::vector<int> slide;
+      if (I.kind == EdgeKind::wall_other) slide.push_back(I.b);
+      int id = add_point(I.p[k], add(I.p[k], mul(I.dir.at(side)[k], I.th[k])), slide);
+      eid[key] = id;
+      return id;
+    };
+    for (int f = 0; f < nf; ++f) {
+      if (!wall[f]) continue;
+      const FaceGrid& G = grids.at(f);
+      std::vector<std::array<double, 2>> uv;
+      std::vector<int> gid;  // global point id of each uv point (-1: not yet)
+      std::vector<std::array<std::int32_t, 2>> seg;
+      std::vector<std::vector<std::array<double, 2>>> loops;
+      std::vector<Vec3> bpts;
+      bool ok = true;
+      for (auto& wire : shape.face_wires(f)) {
+        std::vector<std::array<double, 2>> loop;
+        int first = static_cast<int>(uv.size());
+        for (auto& eu : wire) {
+          int e = eu.edge;
+          if (shape.edge_degenerate(e)) {
+            // a pole: the p-curve's end points, both the vertex
+            auto r = shape.edge_range(e);
+            auto vs = shape.edge_vertices(e);
+            cad::Vec2 q = shape.edge_uv(e, f, eu.reversed ? r.hi : r.lo, eu.reversed);
+            if (vs[0] < 0 || !v_has[vs[0]]) { ok = false; break; }
+            uv.push_back({q.u, q.v});
+            gid.push_back(vertex_id(vs[0]));
+            loop.push_back(uv.back());
+            continue;
+          }
+          const EdgeInfo& I = E[e];
+          if (I.kind == EdgeKind::none) { ok = false; break; }
+          int n = static_cast<int>(I.t.size());
+          for (int s = 0; s < n - 1; ++s) {
+            int k = eu.reversed ? n - 1 - s : s;
+            cad::Vec2 q = shape.edge_uv(e, f, I.t[k], eu.reversed);
+            uv.push_back({q.u, q.v});
+            gid.push_back(station_id(e, k, f));
+            bpts.push_back(I.p[k]);
+            loop.push_back(uv.back());
+          }
+        }
+        if (!ok) break;
+        int last = static_cast<int>(uv.size());
+        for (int i = first; i < last; ++i) seg.push_back({i, i + 1 < last ? i + 1 : first});
+        loops.push_back(std::move(loop));
+      }
+      if (!ok || loops.empty()) {
+        ++faces_unsampled;
+        unsampled_why.push_back("face " + std::to_string(f) + ": an edge without a field");
+        continue;
+      }
+      auto inside = [&](double u, double v) {
+        bool in = false;
+        for (auto& l : loops)
+          for (std::size_t i = 0, j = l.size() - 1; i < l.size(); j = i++) {
+            auto [ui, vi] = l[i];
+            auto [uj, vj] = l[j];
+            if ((vi > v) != (vj > v) && u < (uj - ui) * (v - vi) / (vj - vi) + ui) in = !in;
+          }
+        return in;
+      };
+      // interior grid nodes inside the face, at least h/2 from the boundary stations
+      std::vector<medial::Vec3> bp(bpts.begin(), bpts.end());
+      std::unique_ptr<medial::NearestIndex> bidx;
+      if (!bp.empty()) bidx = std::make_unique<medial::NearestIndex>(bp);
+      const std::size_t nb = uv.size();
+      for (int j = 1; j + 1 < G.nv; ++j)
+        for (int i = 1; i + 1 < G.nu; ++i) {
+          double u = G.u0 + (G.u1 - G.u0) * i / (G.nu - 1), v = G.v0 + (G.v1 - G.v0) * j / (G.nv - 1);
+          if (!inside(u, v)) continue;
+          Vec3 x = v3(shape.face_point(f, u, v));
+          if (bidx && bidx->nearest(x, 1)[0].second < 0.5 * h) continue;
+          uv.push_back({u, v});
+          gid.push_back(-1);
+        }
+      std::vector<std::array<std::int32_t, 3>> tris;
+      try {
+        tris = cdt2(uv, seg);
+      } catch (const std::exception& ex) {
+        ++faces_unsampled;
+        unsampled_why.push_back("face " + std::to_string(f) + ": " + ex.what());
+        continue;
+      }
+      for (auto& t : tris) {
+        double cu = (uv[t[0]][0] + uv[t[1]][0] + uv[t[2]][0]) / 3, cv = (uv[t[0]][1] + uv[t[1]][1] + uv[t[2]][1]) / 3;
+        if (!inside(cu, cv)) continue;
+        std::array<std::int32_t, 3> g{};
+        for (int c = 0; c < 3; ++c) {
+          int li = t[c];
+          if (gid[li] < 0) {
+            auto [th, d] = grid_at(f, uv[li][0], uv[li][1]);
+            Vec3 x = v3(shape.face_point(f, uv[li][0], uv[li][1]));
+            gid[li] = add_point(x, add(x, mul(d, th)), {});
+          }
+          g[c] = gid[li];
+        }
+        if (g[0] == g[1] || g[1] == g[2] || g[0] == g[2]) continue;
+        out.shell_tris.push_back(g);
+        out.shell_tri_face.push_back(f);
+      }
+      (void)nb;
+    }
+    // wall|wall junctions: close the crack between the two sides' shells through the block's
+    // outer corner curve PC = P0 + t (m_A + m_B)
+    for (int e = 0; e < ne; ++e) {
+      const EdgeInfo& I = E[e];
+      if (!(I.junction && I.kind == EdgeKind::wall_wall)) continue;
+      int n = static_cast<int>(I.t.size());
+      std::vector<int> c(n);
+      for (int k = 0; k < n; ++k) {
+        if ((k == 0 && I.v0 >= 0 && v_has[I.v0]) || (k == n - 1 && I.v1 >= 0 && v_has[I.v1])) {
+          c[k] = station_id(e, k, I.a);
+          continue;
+        }
+        c[k] = add_point(I.p[k], add(I.p[k], mul(add(I.ma[k], I.mb[k]), I.th[k])), {});
+      }
+      for (int side : {I.a, I.b})
+        for (int k = 0; k + 1 < n; ++k) {
+          int s0 = station_id(e, k, side), s1 = station_id(e, k + 1, side);
+          std::array<std::int32_t, 3> t1{s0, s1, c[k + 1]}, t2{s0, c[k + 1], c[k]};
+          for (auto t : {t1, t2})
+            if (t[0] != t[1] && t[1] != t[2] && t[0] != t[2]) {
+              out.shell_tris.push_back(t);
+              out.shell_tri_face.push_back(side);
+            }
+        }
+    }
+  }
+
+  // ── 6. blocks ──
+  nlohmann::json blocks() {
+    nlohmann::json B = nlohmann::json::array();
+    for (int f = 0; f < nf; ++f) {
+      if (!wall[f]) continue;
+      nlohmann::json edges = nlohmann::json::array(), equal = nlohmann::json::array();
+      for (int e : shape.face_edges(f)) {
+        if (shape.edge_degenerate(e)) continue;
+        const EdgeInfo& I = E[e];
+        std::string base = I.junction ? "j" + std::to_string(e) + (I.a == f ? "a" : "b") : "w" + std::to_string(e);
+        edges.push_back(base);
+        equal.push_back({base, I.junction ? "j" + std::to_string(e) + "c" : "s" + std::to_string(e)});
+      }
+      B.push_back({{"kind", "prism_sweep"}, {"face", f}, {"tag", cad::tag_name(shape.face_tag(f))}, {"edges", edges}, {"equal", equal}});
+    }
+    for (int e = 0; e < ne; ++e) {
+      const EdgeInfo& I = E[e];
+      if (!I.junction) continue;
+      std::string s = std::to_string(e);
+      nlohmann::json st = nlohmann::json::array();
+      int n = static_cast<int>(I.t.size());
+      for (int k = 0; k < n; ++k) {
+        double w = I.th[k];
+        Vec3 P0 = I.p[k];
+        auto pa = shape.project_to_face(I.a, cv(add(P0, mul(I.ma[k], w))), I.uv[k].at(I.a));
+        auto pb = shape.project_to_face(I.b, cv(add(P0, mul(I.mb[k], w))), I.uv[k].at(I.b));
+        auto [ta, da] = grid_at(I.a, pa.u, pa.v);
+        Vec3 PA = v3(pa.point), PB = v3(pb.point);
+        Vec3 PC = add(PA, mul(da, ta));
+        st.push_back({{"t", I.t[k]}, {"P0", P0}, {"PA", PA}, {"uvA", {pa.u, pa.v}}, {"PB", PB}, {"uvB", {pb.u, pb.v}}, {"PC", PC}});
+      }
+      nlohmann::json equal = nlohmann::json::array();
+      equal.push_back({"w" + s, "j" + s + "a", "j" + s + "b", "j" + s + "c"});
+      equal.push_back({"x" + s + ".0.0a", "x" + s + ".0.bc", "x" + s + ".1.0a", "x" + s + ".1.bc"});
+      equal.push_back({"x" + s + ".0.0b", "x" + s + ".0.ac", "x" + s + ".1.0b", "x" + s + ".1.ac"});
+      B.push_back({{"kind", "hex_junction"},
+                   {"edge", e},
+                   {"face", I.a},
+                   {"partner", I.b},
+                   {"partner_tag", cad::tag_name(shape.face_tag(I.b))},
+                   {"fluid_angle_deg", I.fluid_angle},
+                   {"vertices", {I.v0, I.v1}},
+                   {"equal", equal},
+                   {"stations", st}});
+    }
+    return B;
+  }
+
+  void run() {
+    double t0 = now();
+    shape = cad::Shape::load(ctx.input("shape").path);
+    M = medial::read(ctx.input("medial").path);
+    nf = shape.num_faces(), ne = shape.num_edges(), nv = shape.num_vertices();
+    if (static_cast<int>(M.info.size()) != static_cast<int>(M.samples.size()))
+      throw StageError("shell: the medial artifact is inconsistent (samples vs per-sample info); re-run medial");
+    wall.assign(nf, 0);
+    for (int f : shape.faces_with_tag(cad::Tag::wall)) wall[f] = 1;
+    auto walls = shape.faces_with_tag(cad::Tag::wall);
+    if (walls.empty())
+      throw StageError("shell: the shape has no face tagged `wall`; the shell offsets the walls (tag the body faces as wall in the geometry/heal stage)");
+    for (auto& s : M.samples)
+      for (int f : s.faces)
+        if (f >= nf)
+          throw StageError("shell: the medial object refers to face " + std::to_string(f) + " but the shape has " +
+                           std::to_string(nf) + " faces; medial and shell must read the same shape (needs: [heal, medial])");
+    topo_c = P.at("topology").get<std::string>() == "C";
+    for (auto& t : P.at("junction_with")) junction_with.insert(cad::tag_from_name(t.get<std::string>()));
+    alpha = P.at("alpha"), grad = P.at("max_gradient"), blend = P.at("blend_length");
+    junction_angle = P.at("junction_angle_deg"), max_grid = P.at("max_grid");
+    Vec3 lo{INFINITY, INFINITY, INFINITY}, hi{-INFINITY, -INFINITY, -INFINITY};
+    for (int f : walls) {
+      auto b = shape.face_box(f);
+      for (int k = 0; k < 3; ++k) lo[k] = std::min(lo[k], b.lo[k]), hi[k] = std::max(hi[k], b.hi[k]);
+    }
+    Lref = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]});
+    double diag = norm(sub(hi, lo));
+    T = P.at("thickness").get<double>();
+    if (P.at("thickness_relative_to") == "wall_box") T *= Lref;
+    h = P.at("spacing").get<double>() * diag;
+    treated_nbrs.assign(nf, {});
+    ctx.progress(0.02, "edges");
+    classify_edges();
+    face_edges_cache.resize(nf);
+    for (int f = 0; f < nf; ++f) face_edges_cache[f] = shape.face_edges(f);
+    ctx.progress(0.15, "thickness on the wall samples");
+    sample_thickness();
+    ctx.progress(0.25, "edge fields");
+    edge_fields();
+    face_grids();
+    ctx.progress(0.7, "sampled shell surface");
+    sample_surface();
+    ctx.progress(0.85, "checks");
+    auto inter = self_intersections(out.shell_points, out.shell_tris);
+
+    // clearance of the shell points to the walls and to the far field
+    double clear_wall = INFINITY, clear_far = INFINITY, rel_wall = INFINITY;
+    Vec3 at_wall{}, at_far{};
+    {
+      std::vector<medial::Vec3> wp, fp;
+      std::vector<int> wi, fi;
+      for (std::size_t i = 0; i < M.samples.size(); ++i) {
+        auto& s = M.samples[i];
+        bool w = false, far = false;
+        for (int f : s.faces)
+          if (f >= 0) w |= wall[f] > 0, far |= shape.face_tag(f) == cad::Tag::farfield;
+        if (w) wp.push_back(s.p), wi.push_back(static_cast<int>(i));
+        if (far) fp.push_back(s.p), fi.push_back(static_cast<int>(i));
+      }
+      medial::NearestIndex widx(wp);
+      std::unique_ptr<medial::NearestIndex> fidx;
+      if (!fp.empty()) fidx = std::make_unique<medial::NearestIndex>(fp);
+      for (std::size_t q = 0; q < out.shell_points.size(); ++q) {
+        const Vec3& x = out.shell_points[q];
+        auto [j, d] = widx.nearest(x, 1)[0];
+        const auto& s = M.samples[wi[j]];
+        if (s.kind == 0) {  // refine by projection on the sample's face
+          auto pr = shape.project_to_face(s.id, cv(x), cad::Vec2{s.u, s.v});
+          if (pr.distance < d && shape.face_contains_uv(s.id, pr.u, pr.v, 1e-7)) d = pr.distance;
+        }
+        if (d < clear_wall) clear_wall = d, at_wall = x;
+        double tq = norm(sub(x, out.shell_wall[q]));
+        if (tq > 0) rel_wall = std::min(rel_wall, d / tq);
+        if (fidx) {
+          auto [jf, df] = fidx->nearest(x, 1)[0];
+          if (df < clear_far) clear_far = df, at_far = x;
+        }
+      }
+    }
+    // honoured thickness
+    double tmin = INFINITY, tmax = 0;
+    Vec3 worst{};
+    for (std::size_t k = 0; k < ws.size(); ++k) {
+      if (ws_t[k] < tmin) tmin = ws_t[k], worst = M.samples[ws[k]].p;
+      tmax = std::max(tmax, ws_t[k]);
+    }
+    long reduced = 0;
+    for (double t : ws_t) reduced += t < T * (1 - 1e-9);
+    double gmin = INFINITY, gmax = 0;
+    for (auto& [f, G] : grids)
+      for (std::size_t i = 0; i < G.data.size(); i += 4) gmin = std::min(gmin, G.data[i]), gmax = std::max(gmax, G.data[i]);
+
+    nlohmann::json stats;
+    stats["thickness_requested"] = T;
+    stats["reference_length"] = Lref;
+    stats["thickness"] = {{"min", tmin}, {"max", tmax}, {"grid_min", gmin}, {"grid_max", gmax}};
+    stats["not_honoured"] = {{"samples", reduced},
+                             {"of", ws.size()},
+                             {"limited_by_medial", limited_samples},
+                             {"medial_limit_min", std::isfinite(lim_min) ? nlohmann::json(lim_min) : nlohmann::json(nullptr)},
+                             {"medial_limit_at", lim_at},
+                             {"min_thickness", tmin},
+                             {"worst_location", worst}};
+    stats["corner_balls_ignored"] = corner_balls;
+    stats["self_intersections"] = inter.pairs;
+    if (inter.pairs > 0) stats["self_intersection_at"] = inter.first;
+    stats["min_clearance"] = {{"walls", clear_wall},
+                              {"walls_over_thickness", rel_wall},
+                              {"farfield", std::isfinite(clear_far) ? nlohmann::json(clear_far) : nlohmann::json(nullptr)},
+                              {"walls_at", at_wall}};
+    if (std::isfinite(clear_far)) stats["min_clearance"]["farfield_at"] = at_far;
+    stats["faces_unsampled"] = faces_unsampled;
+    if (!unsampled_why.empty()) stats["unsampled"] = unsampled_why;
+    long nj = 0, nwall_other = 0, nww = 0;
+    nlohmann::json jlist = nlohmann::json::array();
+    for (int e = 0; e < ne; ++e) {
+      nj += E[e].junction;
+      nwall_other += E[e].kind == EdgeKind::wall_other;
+      nww += E[e].kind == EdgeKind::wall_wall;
+    }
+    ctx.progress(0.9, "blocks");
+    nlohmann::json B = blocks();
+    nlohmann::json h;
+    nlohmann::json params = P;
+    h["params"] = params;
+    h["units"] = shape.units();
+    h["counts"] = {{"wall_faces", walls.size()},
+                   {"wall_wall_edges", nww},
+                   {"wall_other_edges", nwall_other},
+                   {"junction_edges", nj},
+                   {"prism_blocks", walls.size()},
+                   {"hex_junction_blocks", nj}};
+    h["blocks"] = B;
+    h["stats"] = stats;
+    for (auto& [f, G] : grids) out.faces.push_back(G);
+    for (int e = 0; e < ne; ++e) {
+      const EdgeInfo& I = E[e];
+      if (I.kind == EdgeKind::none) continue;
+      EdgeField F;
+      F.edge = e, F.t0 = I.t.front(), F.t1 = I.t.back(), F.sides = I.sides;
+      for (int s : I.sides) {
+        std::vector<double> d;
+        for (std::size_t k = 0; k < I.t.size(); ++k) {
+          auto& dk = I.dir.at(s)[k];
+          d.insert(d.end(), {I.th[k], dk[0], dk[1], dk[2]});
+        }
+        F.data.push_back(std::move(d));
+      }
+      out.edges.push_back(std::move(F));
+    }
+    for (int v = 0; v < nv; ++v)
+      if (v_has[v]) out.vertices.push_back({v, v_t[v], v_d[v]});
+    out.header = h.dump();
+    write(out, ctx.output("shell", "shell"));
+
+    auto& st = ctx.stats();
+    for (auto& [k, v] : stats.items()) st[k] = v;
+    st["counts"] = h["counts"];
+    st["shell_points"] = out.shell_points.size();
+    st["shell_triangles"] = out.shell_tris.size();
+    st["time"] = now() - t0;
+    ctx.progress(1.0, "done");
+  }
+};
+
+void run(StageContext& ctx) {
+  Stage s(ctx);
+  s.run();
+}
+
+StageRegistrar reg({.kind = "shell",
+                    .version = 1,
+                    .summary = "near-field shell bounded by the medial object: thickness/direction fields, prism and C-type hex junction blocks",
+                    .libraries = {"CGAL " CGAL_VERSION_STR},
+                    .run = run});
+
+}  // namespace
+}  // namespace meshflow::shell
