@@ -23,6 +23,67 @@ namespace meshflow::model {
 
 namespace {
 
+using LD = long double;
+
+// Gradients of the nodal Lagrange basis on the element's equispaced (Gmsh) nodes, by product
+// formulas accurate to rounding (not through an inverse Vandermonde matrix): simplices by
+// Silvester's formula N = prod_m R_{a_m}(lambda_m), R_a(l) = prod_{s<a} (P l - s)/(s+1);
+// quads/hexes as products of 1D Lagrange polynomials; prisms as triangle x line.
+// dN[3*i+c] for node i (Gmsh order), direction c.
+void silvester(int P, int a, LD l, LD& R, LD& dR) {  // R_a(l) and dR/dl
+  R = 1, dR = 0;
+  for (int s = 0; s < a; ++s) {
+    const LD f = (P * l - s) / (s + 1), df = LD(P) / (s + 1);
+    dR = dR * f + R * df;
+    R *= f;
+  }
+}
+void lagrange1(int P, int i, LD x, LD& L, LD& dL) {  // 1D Lagrange on -1 + 2s/P, s = 0..P
+  L = 1, dL = 0;
+  const LD xi = -1 + 2 * LD(i) / P;
+  for (int s = 0; s <= P; ++s) {
+    if (s == i) continue;
+    const LD xs = -1 + 2 * LD(s) / P, den = xi - xs;
+    dL = dL * (x - xs) / den + L / den;
+    L *= (x - xs) / den;
+  }
+}
+bool exact_grad_supported(Shape s) {
+  return s == Shape::Tri || s == Shape::Quad || s == Shape::Tet || s == Shape::Prism || s == Shape::Hex;
+}
+void exact_grad(Shape s, int P, const Vec3& xi, LD* dN) {
+  const auto& lat = lattice(s, P);
+  const int n = (int)lat.size();
+  for (int i = 0; i < n; ++i) {
+    const Lattice& a = lat[i];
+    LD g[3] = {0, 0, 0};
+    if (s == Shape::Tri || s == Shape::Tet || s == Shape::Prism) {
+      const bool tet = s == Shape::Tet;
+      const LD x = xi[0], y = xi[1], z = tet ? LD(xi[2]) : 0;
+      const int a0 = P - a[0] - a[1] - (tet ? a[2] : 0);
+      LD R0, d0, R1, d1, R2, d2, R3 = 1, d3 = 0;
+      silvester(P, a0, 1 - x - y - z, R0, d0);
+      silvester(P, a[0], x, R1, d1);
+      silvester(P, a[1], y, R2, d2);
+      if (tet) silvester(P, a[2], z, R3, d3);
+      LD L = 1, dL = 0;
+      if (s == Shape::Prism) lagrange1(P, a[2], xi[2], L, dL);
+      g[0] = (-d0 * R1 * R2 * R3 + R0 * d1 * R2 * R3) * L;
+      g[1] = (-d0 * R1 * R2 * R3 + R0 * R1 * d2 * R3) * L;
+      if (tet) g[2] = -d0 * R1 * R2 * R3 + R0 * R1 * R2 * d3;
+      if (s == Shape::Prism) g[2] = R0 * R1 * R2 * dL;
+    } else {  // quad, hex
+      const int d = s == Shape::Hex ? 3 : 2;
+      LD L[3] = {1, 1, 1}, dL[3] = {0, 0, 0};
+      for (int c = 0; c < d; ++c) lagrange1(P, a[c], xi[c], L[c], dL[c]);
+      g[0] = dL[0] * L[1] * L[2];
+      g[1] = L[0] * dL[1] * L[2];
+      if (d == 3) g[2] = L[0] * L[1] * dL[2];
+    }
+    for (int c = 0; c < 3; ++c) dN[3 * i + c] = g[c];
+  }
+}
+
 double binom(int n, int k) {
   double r = 1;
   for (int i = 1; i <= k; ++i) r = r * (n - k + i) / i;
@@ -32,6 +93,10 @@ double bern1(int d, int a, double t) { return binom(d, a) * std::pow(t, a) * std
 
 // Bernstein basis of the det J space of one shape; `lat` = multi-indices (also the lattice
 // points of the interpolation: point = index / degree).
+// Relative rounding allowance of the Bernstein coefficients: the per-direction (<= 18 term)
+// sums in up to 3 stages, the transform rounded from long double, the det J of the samples.
+constexpr double kKappa = 128 * std::numeric_limits<double>::epsilon();
+
 struct JacobianSpace {
   Shape shape;
   int order, dim;
@@ -79,14 +144,17 @@ struct JacobianSpace {
   std::vector<std::vector<Vec3>> children;  // canonical subdivision (vertex lists)
   double ref_volume = 1;
 
+  // Chebyshev-Gauss-Lobatto abscissa q of degree d on [-1,1] (tensor directions: the 1D
+  // Bernstein interpolation there is ~100x better conditioned than on equispaced points)
+  static double cheb(int q, int d) { return q == 0 ? -1.0 : q == d ? 1.0 : -std::cos(M_PI * q / d); }
   Vec3 point(const Lattice& a) const {
     switch (shape) {
       case Shape::Tri: return d1 ? Vec3{a[0] / double(d1), a[1] / double(d1), 0} : Vec3{1 / 3., 1 / 3., 0};
       case Shape::Tet: return d1 ? Vec3{a[0] / double(d1), a[1] / double(d1), a[2] / double(d1)} : Vec3{.25, .25, .25};
-      case Shape::Quad: return {-1 + 2. * a[0] / d1, -1 + 2. * a[1] / d1, 0};
-      case Shape::Hex: return {-1 + 2. * a[0] / d1, -1 + 2. * a[1] / d1, -1 + 2. * a[2] / d1};
+      case Shape::Quad: return {cheb(a[0], d1), cheb(a[1], d1), 0};
+      case Shape::Hex: return {cheb(a[0], d1), cheb(a[1], d1), cheb(a[2], d1)};
       case Shape::Prism:
-        return {d1 ? a[0] / double(d1) : 1 / 3., d1 ? a[1] / double(d1) : 1 / 3., -1 + 2. * a[2] / d2};
+        return {d1 ? a[0] / double(d1) : 1 / 3., d1 ? a[1] / double(d1) : 1 / 3., cheb(a[2], d2)};
       default: return {0, 0, 0};
     }
   }
@@ -166,53 +234,76 @@ struct JacobianSpace {
     const int n = b.size(), np = (int)pts.size();
     G.resize(3 * np, n);
     std::vector<double> dN(3 * n);
+    std::vector<LD> dNl(3 * n);
     for (int q = 0; q < np; ++q) {
-      b.grad(pts[q], dN.data());
+      if (exact_grad_supported(s)) {
+        exact_grad(s, p, pts[q], dNl.data());
+        for (int k = 0; k < 3 * n; ++k) dN[k] = (double)dNl[k];
+      } else {
+        b.grad(pts[q], dN.data());
+      }
       for (int c = 0; c < 3; ++c)
         for (int i = 0; i < n; ++i) G(3 * q + c, i) = dN[3 * i + c];
     }
     if (!lat.empty()) {
       // Lagrange -> Bernstein: dense on simplices, factorised (Kronecker) on tensor shapes.
+      // (the transforms are computed in long double and rounded once to double)
+      using MatL = Eigen::Matrix<LD, Eigen::Dynamic, Eigen::Dynamic>;
       auto inv1 = [](int d) {
-        Eigen::MatrixXd M(d + 1, d + 1);
-        for (int q = 0; q <= d; ++q)
-          for (int a = 0; a <= d; ++a) M(q, a) = bern1(d, a, double(q) / d);
-        return Eigen::MatrixXd(M.fullPivLu().inverse());
+        MatL M(d + 1, d + 1);
+        for (int q = 0; q <= d; ++q) {
+          const LD t = (1 + (LD)cheb(q, d)) / 2;
+          for (int a = 0; a <= d; ++a) M(q, a) = (LD)binom(d, a) * std::pow(t, (LD)a) * std::pow(1 - t, (LD)(d - a));
+        }
+        return Eigen::MatrixXd(MatL(M.fullPivLu().inverse()).cast<double>());
       };
       if (s == Shape::Tri || s == Shape::Tet) {
-        Eigen::MatrixXd M(np, np);
+        MatL M(np, np);
         for (int q = 0; q < np; ++q)
-          for (int a = 0; a < np; ++a) M(q, a) = bernstein(lat[a], pts[q]);
-        T = M.fullPivLu().inverse();
+          for (int a = 0; a < np; ++a) {
+            const LD x = (LD)lat[q][0] / d1, y = (LD)lat[q][1] / d1, z = (LD)lat[q][2] / d1;
+            const int a0 = d1 - lat[a][0] - lat[a][1] - lat[a][2];
+            LD c = 1;  // multinomial d1! / (a0! a1! a2! a3!)
+            for (int k = 1; k <= d1; ++k) c *= k;
+            for (int e : {a0, lat[a][0], lat[a][1], lat[a][2]})
+              for (int k = 2; k <= e; ++k) c /= k;
+            M(q, a) = c * std::pow(1 - x - y - z, (LD)a0) * std::pow(x, (LD)lat[a][0]) * std::pow(y, (LD)lat[a][1]) *
+                      std::pow(z, (LD)lat[a][2]);
+          }
+        T = MatL(M.partialPivLu().inverse()).cast<double>();
       } else if (s == Shape::Prism) {
         std::vector<Lattice> tl;
         for (int i = 0; i <= d1; ++i)
           for (int j = 0; i + j <= d1; ++j) tl.push_back({i, j, 0});
         const int nt = (int)tl.size();
-        Eigen::MatrixXd M(nt, nt);
+        MatL M(nt, nt);
         for (int q = 0; q < nt; ++q)
           for (int a = 0; a < nt; ++a) {
-            Vec3 x = {d1 ? tl[q][0] / double(d1) : 1 / 3., d1 ? tl[q][1] / double(d1) : 1 / 3., 0};
-            double l0 = 1 - x[0] - x[1];
-            int a0 = d1 - tl[a][0] - tl[a][1];
-            double c = std::tgamma(d1 + 1) / (std::tgamma(a0 + 1) * std::tgamma(tl[a][0] + 1) * std::tgamma(tl[a][1] + 1));
-            M(q, a) = c * std::pow(l0, a0) * std::pow(x[0], tl[a][0]) * std::pow(x[1], tl[a][1]);
+            const LD x = d1 ? (LD)tl[q][0] / d1 : LD(1) / 3, y = d1 ? (LD)tl[q][1] / d1 : LD(1) / 3;
+            const int a0 = d1 - tl[a][0] - tl[a][1];
+            LD c = 1;
+            for (int k = 1; k <= d1; ++k) c *= k;
+            for (int e : {a0, tl[a][0], tl[a][1]})
+              for (int k = 2; k <= e; ++k) c /= k;
+            M(q, a) = c * std::pow(1 - x - y, (LD)a0) * std::pow(x, (LD)tl[a][0]) * std::pow(y, (LD)tl[a][1]);
           }
-        Ta = M.fullPivLu().inverse();
+        Ta = MatL(M.fullPivLu().inverse()).cast<double>();
         Tb = inv1(d2);
       } else {
         Ta = inv1(d1);
       }
-      // Lagrange -> Bernstein on equispaced points is ill-conditioned at high degree (the
-      // amplification is the infinity norm of the transform, a power of the 1D one on
-      // tensor shapes); where rounding could flip a coefficient's sign we fall back to
-      // sampling at the lattice points (reported as "sampling"). At P <= 4 every shape is
-      // certified by Bezier bounds.
+      // Values -> Bernstein is ill-conditioned at high degree: the amplification is the
+      // infinity norm of the transform (a product of the factors' norms on tensor shapes).
+      // A coefficient is trusted positive only above the rounding bound
+      // kKappa * amplification * (max over samples of the Hadamard bound of det J), see
+      // classify(); where that bound would exceed 14% of det J's scale the transform cannot
+      // certify anything useful and we fall back to sampling (reported as "sampling"):
+      // this is only the case for hexahedra of order >= 6 (and pyramids, always sampled).
       auto rowsum = [](const Eigen::MatrixXd& A) { return A.cwiseAbs().rowwise().sum().maxCoeff(); };
       amplification = T.size() ? rowsum(T)
                       : s == Shape::Prism ? rowsum(Ta) * rowsum(Tb)
                                           : std::pow(rowsum(Ta), dim);
-      bezier = amplification < 1e6;
+      bezier = amplification * kKappa < 0.14;
     }
     // canonical children as vertex lists in reference coordinates
     auto mid = [](Vec3 a, Vec3 b) { return Vec3{(a[0] + b[0]) / 2, (a[1] + b[1]) / 2, (a[2] + b[2]) / 2}; };
@@ -263,6 +354,12 @@ const JacobianSpace& space(Shape s, int p) {
 }
 
 double det_at(int dim, const double J[9], const double* normal) { return jacobian_determinant(dim, J, normal); }
+// Hadamard bound of |det J| (product of the column lengths): the scale of det J's rounding.
+double hadamard(int dim, const double J[9]) {
+  double h = 1;
+  for (int c = 0; c < dim; ++c) h *= std::sqrt(J[c] * J[c] + J[3 + c] * J[3 + c] + J[6 + c] * J[6 + c]);
+  return h;
+}
 
 void straight_normal(Shape s, const double* X, double n[3]) {
   auto P = [&](int i, int r) { return X[3 * i + r]; };
@@ -297,6 +394,8 @@ void refine(const JacobianSpace& sp, const double* X, const double* normal, Elem
   const LagrangeBasis& b = LagrangeBasis::get(sp.shape, sp.order);
   const int np = (int)sp.pts.size(), n = b.size();
   std::vector<double> dN(3 * n);
+  std::vector<LD> dNl(3 * n);
+  const bool exact = exact_grad_supported(sp.shape);
   std::deque<std::pair<std::vector<Vec3>, int>> todo;
   for (auto& c : sp.children) todo.push_back({c, 1});
   const int max_depth = 6, max_domains = 600;
@@ -305,18 +404,25 @@ void refine(const JacobianSpace& sp, const double* X, const double* normal, Elem
   while (!todo.empty()) {
     auto [dom, depth] = std::move(todo.front());
     todo.pop_front();
+    double href = 0;
     if (++visited > max_domains) {
       q.inconclusive = true;
       return;
     }
     for (int p = 0; p < np; ++p) {
       Vec3 xi = map_linear(sp.shape, dom, sp.pts[p]);
-      b.grad(xi, dN.data());
+      if (exact) {
+        exact_grad(sp.shape, sp.order, xi, dNl.data());
+        for (int k = 0; k < 3 * n; ++k) dN[k] = (double)dNl[k];
+      } else {
+        b.grad(xi, dN.data());
+      }
       double J[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
       for (int i = 0; i < n; ++i)
         for (int r = 0; r < 3; ++r)
           for (int c = 0; c < 3; ++c) J[3 * r + c] += X[3 * i + r] * dN[3 * i + c];
       v[p] = det_at(sp.dim, J, normal);
+      href = std::max(href, hadamard(sp.dim, J));
       q.min_det = std::min(q.min_det, v[p]);
       q.max_det = std::max(q.max_det, v[p]);
     }
@@ -326,7 +432,7 @@ void refine(const JacobianSpace& sp, const double* X, const double* normal, Elem
     }
     Eigen::VectorXd c(np);
     sp.to_bezier(v.data(), c.data());
-    if (c.minCoeff() > 0) continue;
+    if (c.minCoeff() > kKappa * sp.amplification * href) continue;
     if (depth >= max_depth) {
       q.inconclusive = true;
       continue;
@@ -341,7 +447,7 @@ void refine(const JacobianSpace& sp, const double* X, const double* normal, Elem
 
 // Classifies element e of a chunk given its det values and coefficients.
 void classify(const JacobianSpace& sp, const double* X, const double* normal, const double* vals,
-              const double* coef, ElementQuality& q) {
+              const double* coef, double href, ElementQuality& q) {
   const int np = (int)sp.pts.size();
   q.min_det = *std::min_element(vals, vals + np);
   q.max_det = *std::max_element(vals, vals + np);
@@ -351,7 +457,7 @@ void classify(const JacobianSpace& sp, const double* X, const double* normal, co
     q.valid = q.min_det > 0;
   } else if (q.min_det <= 0) {
     q.valid = false;
-  } else if (*std::min_element(coef, coef + np) > 0) {
+  } else if (*std::min_element(coef, coef + np) > kKappa * sp.amplification * href) {
     q.valid = true;
   } else {
     refine(sp, X, normal, q);
@@ -366,20 +472,25 @@ void evaluate_chunk(const JacobianSpace& sp, const Eigen::MatrixXd& X, int count
   const int np = (int)sp.pts.size();
   Eigen::MatrixXd GX = sp.G * X;  // (3np) x (3count)
   Eigen::MatrixXd V(np, count);
-  for (int e = 0; e < count; ++e)
+  double H[64];
+  for (int e = 0; e < count; ++e) {
+    double h = 0;
     for (int p = 0; p < np; ++p) {
       double J[9];
       for (int r = 0; r < 3; ++r)
         for (int c = 0; c < 3; ++c) J[3 * r + c] = GX(3 * p + c, 3 * e + r);
       V(p, e) = det_at(sp.dim, J, normals + 3 * e);
+      h = std::max(h, hadamard(sp.dim, J));
     }
+    H[e] = h;
+  }
   Eigen::MatrixXd C(np, count);
   if (sp.T.size())
     C.noalias() = sp.T * V;
   else if (sp.bezier)
     for (int e = 0; e < count; ++e) sp.to_bezier(V.col(e).data(), C.col(e).data());
   for (int e = 0; e < count; ++e)
-    classify(sp, xyz[e], normals + 3 * e, V.col(e).data(), sp.bezier ? C.col(e).data() : nullptr, out[e]);
+    classify(sp, xyz[e], normals + 3 * e, V.col(e).data(), sp.bezier ? C.col(e).data() : nullptr, H[e], out[e]);
 }
 
 }  // namespace
@@ -543,9 +654,16 @@ nlohmann::json mesh_stats(const Mesh& m, int threads) {
   j["min_scaled_jacobian"] = mn;
   j["median_scaled_jacobian"] = med;
   j["max_aspect_ratio"] = total ? max_ar : 1.0;
-  j["validity_method"] = sampled ? "bezier; sampling for " + std::to_string(sampled) +
-                                       " elements (pyramids, or degrees too high for stable Bezier conversion)"
-                                 : std::string("bezier");
+  std::size_t sampled_pyr = 0;
+  for (size_t bi = 0; bi < m.blocks.size(); ++bi)
+    if (m.blocks[bi].shape == Shape::Pyramid) sampled_pyr += q[bi].size();
+  // proven (Bezier bounds): triangles, quads, tets, prisms of order <= 6 (and up to 10 where
+  // the transform stays well conditioned), hexahedra of order <= 5; sampled: the rest
+  j["validity_method"] =
+      sampled ? "bezier (proven) for " + std::to_string(total - sampled) + " elements; sampling (not proven) for " +
+                    std::to_string(sampled) + " elements: " + std::to_string(sampled_pyr) + " pyramids (rational space), " +
+                    std::to_string(sampled - sampled_pyr) + " of degrees whose Bezier transform is too ill-conditioned (hexahedra P >= 6)"
+              : std::string("bezier (proven for every element)");
   j["sampled"] = sampled;
   sj_edges.back() = 1.0;
   ar_edges.back() = 1e300;

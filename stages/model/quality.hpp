@@ -4,16 +4,21 @@
 // is a polynomial: degree 3(P-1) on a tet, 2(P-1) on a triangle, 3P-1 per direction on a hex
 // (Q_P: d/dxi lowers one direction only), 2P-1 per direction on a quad, and on a prism
 // (P_P(tri) x P_P(line)) degree 3P-2 in the triangle variables times 3P-1 in the prism axis.
-// We interpolate det J at the equispaced lattice of that degree, convert the values to
-// Bernstein (Bezier) coefficients; all coefficients > 0 proves validity (the polynomial is a
-// convex combination of them), a sampled value <= 0 proves invalidity, otherwise the domain
-// is subdivided (simplices into 4/8, boxes into 4/8, prisms into 8) and each part is checked
-// again (up to depth 6; still inconclusive then = valid, reported in "inconclusive").
-// This is the method of Johnen, Remacle and Geuzaine (2013) that Gmsh uses.
-// Pyramids (method "sampling"): Gmsh's pyramidal space is rational, so det J is not a
-// polynomial; we sample det J at the equispaced pyramid lattice of order 3P+2 (apex
-// excluded). A pyramid valid at all samples but invalid between them can be missed.
-//
+// We interpolate det J at a lattice of that degree (equispaced on simplices, Chebyshev-Lobatto
+// along tensor directions, where the 1D Bernstein interpolation is far better conditioned),
+// with the basis gradients from exact product formulas, and convert the values to Bernstein
+// (Bezier) coefficients with transforms computed in long double. All coefficients above the
+// rounding bound 128 eps * |transform|_inf * max(Hadamard bound of det J) proves validity
+// (the polynomial is a convex combination of them); a sampled value <= 0 proves invalidity;
+// otherwise the domain is subdivided (simplices into 4/8, boxes into 4/8, prisms into 8) and
+// each part is checked again (up to depth 6; still inconclusive then = valid, reported in
+// "inconclusive"). This is the method of Johnen, Remacle and Geuzaine (2013) that Gmsh uses.
+// Proven this way: triangles, quads, tets and prisms up to P=6, hexahedra up to P=5. Hexahedra
+// of order >= 6 (|transform| ~ 7e14, the bound exceeds det J's scale) are sampled at the
+// Bezier lattice, like pyramids: "sampled" in ElementQuality, named in "validity_method".
+// Pyramids (sampling): Gmsh's pyramidal space is rational, so det J is not a polynomial; we
+// sample det J at the equispaced pyramid lattice of order 3P+2 (apex excluded). A pyramid
+// valid at all samples but invalid between them can be missed.
 // Scaled Jacobian: min det J / max det J over the samples (the Bezier lattice points and
 // those of the subdivisions). <= 0 for invalid elements.
 // Aspect ratio: longest / shortest straight vertex-to-vertex edge of the element (for a thin
