@@ -31,7 +31,14 @@
 // thickness is a_i = min(T, alpha × r_in_i), r_in the radius of the sample's fluid-side medial
 // ball, ignoring "corner balls": balls whose contacts all lie on the sample's face and faces
 // joined to it by a concave edge that the shell treats (junction or slide), whose radius goes
-// to 0 at the edge by construction and is handled by the topology, not by thinning. Then
+// to 0 at the edge by construction and is handled by the topology, not by thinning. (A ball is
+// a corner ball when its centre is within 2 r / sin(θ/2) + h/2 of a concave edge of the
+// sample's face with fluid angle θ < 170°.) Optionally (`lfs_factor` > 0) also a_i <=
+// lfs_factor × lfs_i, the local feature size (distance to the medial object on either side):
+// the fluid-side radius of a convex body such as a wing is large everywhere (it only sees the
+// far field and the root wall), so a thin trailing edge or leading edge thins the shell only
+// through this bound (it makes the near-field prisms around sharp convex edges less
+// distorted). Then
 // t_i = min_j (a_j + g · path length i→j) over the k-nearest-neighbour graph of wall samples
 // that share a face (Dijkstra), g = `max_gradient`: the thickness is g-Lipschitz along the
 // walls (no steps). At any wall point x (grid node, edge station) t(x) = min_j (t_j + g|x−x_j|)

@@ -126,7 +126,7 @@ struct Stage {
       }
       auto r = shape.edge_range(e);
       double len = shape.edge_length(e);
-      int n = std::clamp(static_cast<int>(std::ceil(len / h)) + 1, 3, 4001);
+      int n = std::clamp(static_cast<int>(std::ceil(len / h)) + 1, 9, 4001);
       auto ends = shape.edge_vertices(e);
       I.v0 = ends[0], I.v1 = ends[1];
       std::vector<int> faces = {I.a};
@@ -202,7 +202,8 @@ struct Stage {
     return best;
   }
   // ── 2. thickness on the wall samples ──
-  long corner_balls = 0, limited_samples = 0;
+  long corner_balls = 0, limited_samples = 0, limited_by_lfs = 0;
+  double lfs_factor = 0;
   double lim_min = INFINITY;
   Vec3 lim_at{};
   void sample_thickness() {
@@ -221,10 +222,12 @@ struct Stage {
     ws_index = std::make_unique<medial::NearestIndex>(pts);
     ws_a.assign(ws.size(), T);
     double best_allowed = 0;
+    long free_samples = 0;
     for (std::size_t k = 0; k < ws.size(); ++k) {
       const auto& s = M.samples[ws[k]];
       const auto& si = M.info[ws[k]];
       double a = T;
+      bool is_corner = false;
       if (si.r_in >= 0 && si.pole_in >= 0) {
         // a corner ball: its centre lies in the corner region of a treated concave edge of the
         // sample's face (within 2 r / sin(angle/2) of the edge: the bisector distance of a ball
@@ -241,17 +244,25 @@ struct Stage {
             if (dist_to_polyline(I.p, mp.c) <= reach) { corner = true; break; }
           }
         }
+        is_corner = corner;
         if (corner) ++corner_balls;
         else a = std::min(T, alpha * si.r_in);
       }
+      if (lfs_factor > 0 && si.lfs > 0) {
+        double b = lfs_factor * si.lfs;
+        if (b < a) {
+          a = b;
+          ++limited_by_lfs;
+        }
+      }
       ws_a[k] = a;
-      best_allowed = std::max(best_allowed, a);
+      if (!is_corner && si.r_in >= 0 && si.pole_in >= 0) best_allowed = std::max(best_allowed, a), ++free_samples;
       if (a < T * (1 - 1e-12)) {
         ++limited_samples;
         if (a < lim_min) lim_min = a, lim_at = s.p;
       }
     }
-    if (best_allowed < T * (1 - 1e-12)) {
+    if (free_samples > 0 && best_allowed < T * (1 - 1e-12)) {
       std::ostringstream o;
       o << "shell: the requested thickness " << T << " is larger than the fluid domain can hold at every wall sample "
         << "(the largest alpha x medial radius is " << best_allowed << " with alpha = " << alpha
@@ -408,8 +419,8 @@ struct Stage {
       }
       FaceGrid G;
       G.face = f, G.u0 = b.u0, G.u1 = b.u1, G.v0 = b.v0, G.v1 = b.v1;
-      G.nu = std::clamp(static_cast<int>(std::ceil(Lu / h)) + 1, 3, max_grid);
-      G.nv = std::clamp(static_cast<int>(std::ceil(Lv / h)) + 1, 3, max_grid);
+      G.nu = std::clamp(static_cast<int>(std::ceil(Lu / h)) + 1, std::min(9, max_grid), max_grid);
+      G.nv = std::clamp(static_cast<int>(std::ceil(Lv / h)) + 1, std::min(9, max_grid), max_grid);
       G.data.resize(std::size_t(G.nu) * G.nv * 4);
       // the face's edges with their side values
       struct Near {
@@ -452,14 +463,49 @@ struct Stage {
             double beta = smoothstep(1 - dist / R);
             if (beta <= 0) continue;
             B = std::max(B, beta);
-            de = add(de, mul(dk, beta));
+            // inverse-distance weights: on an edge its own value wins (thin faces such as a
+            // blunt trailing edge see both long edges within the blend length)
+            double w = beta / (best * best + 1e-12 * h * h);
+            de = add(de, mul(dk, w));
           }
           Vec3 d = nrm;
           if (B > 0) d = unit(add(mul(nrm, 1 - B), mul(unit(de), B)));
           double* q = &G.data[(std::size_t(j) * G.nu + i) * 4];
           q[0] = t, q[1] = d[0], q[2] = d[1], q[3] = d[2];
         }
+      lipschitz_grid(f, G);
       grids[f] = std::move(G);
+    }
+  }
+
+  // t_i <= t_j + g |x_i - x_j| between 8-neighbours of the grid (forward/backward sweeps):
+  // the thickness evaluated from a finite set of nearby samples is not exactly Lipschitz
+  // where the candidate set changes; this makes the tabulated field so
+  void lipschitz_grid(int f, FaceGrid& G) const {
+    std::vector<Vec3> X(std::size_t(G.nu) * G.nv);
+    for (int j = 0; j < G.nv; ++j)
+      for (int i = 0; i < G.nu; ++i)
+        X[std::size_t(j) * G.nu + i] = v3(shape.face_point(f, G.u0 + (G.u1 - G.u0) * i / (G.nu - 1), G.v0 + (G.v1 - G.v0) * j / (G.nv - 1)));
+    auto relax = [&](int i, int j, int di, int dj) {
+      int a = i + di, b = j + dj;
+      if (a < 0 || b < 0 || a >= G.nu || b >= G.nv) return false;
+      std::size_t p = std::size_t(j) * G.nu + i, q = std::size_t(b) * G.nu + a;
+      double lim = G.data[q * 4] + grad * norm(sub(X[p], X[q]));
+      if (lim < G.data[p * 4] * (1 - 1e-14)) {
+        G.data[p * 4] = lim;
+        return true;
+      }
+      return false;
+    };
+    for (int it = 0; it < 20; ++it) {
+      bool ch = false;
+      for (int j = 0; j < G.nv; ++j)
+        for (int i = 0; i < G.nu; ++i)
+          for (auto [di, dj] : {std::pair{-1, 0}, {0, -1}, {-1, -1}, {1, -1}}) ch |= relax(i, j, di, dj);
+      for (int j = G.nv - 1; j >= 0; --j)
+        for (int i = G.nu - 1; i >= 0; --i)
+          for (auto [di, dj] : {std::pair{1, 0}, {0, 1}, {1, 1}, {-1, 1}}) ch |= relax(i, j, di, dj);
+      if (!ch) break;
     }
   }
 
@@ -702,6 +748,7 @@ struct Stage {
                            std::to_string(nf) + " faces; medial and shell must read the same shape (needs: [heal, medial])");
     topo_c = P.at("topology").get<std::string>() == "C";
     for (auto& t : P.at("junction_with")) junction_with.insert(cad::tag_from_name(t.get<std::string>()));
+    lfs_factor = P.at("lfs_factor");
     alpha = P.at("alpha"), grad = P.at("max_gradient"), blend = P.at("blend_length");
     junction_angle = P.at("junction_angle_deg"), max_grid = P.at("max_grid");
     Vec3 lo{INFINITY, INFINITY, INFINITY}, hi{-INFINITY, -INFINITY, -INFINITY};
@@ -783,6 +830,7 @@ struct Stage {
     stats["not_honoured"] = {{"samples", reduced},
                              {"of", ws.size()},
                              {"limited_by_medial", limited_samples},
+                             {"limited_by_lfs", limited_by_lfs},
                              {"medial_limit_min", std::isfinite(lim_min) ? nlohmann::json(lim_min) : nlohmann::json(nullptr)},
                              {"medial_limit_at", lim_at},
                              {"min_thickness", tmin},
