@@ -208,7 +208,7 @@ std::vector<Vec3> tri_points(const std::string& type, int P, const std::string& 
   const double tol = 1e-8;
   auto group = [&](int start, auto on, auto less) {
     int cnt = start;
-    for (int i = start; i < nb; ++i)
+    for (int i = start; i < (int)pts.size(); ++i)
       if (on(pts[i])) std::swap(pts[cnt++], pts[i]);
     std::stable_sort(pts.begin() + start, pts.begin() + start + ne, less);
   };
