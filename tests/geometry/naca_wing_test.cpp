@@ -1,5 +1,7 @@
 #include <doctest/doctest.h>
 
+#include "support.hpp"
+
 #include "../cad/test_context.hpp"
 #include "stages/cad/cad.hpp"
 
@@ -14,12 +16,6 @@ using meshflow::cad::Vec3;
 using meshflow::testing::TestContext;
 
 namespace {
-std::string slurp(const std::filesystem::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
 // The NACA 4-digit formula, written independently of the generator.
 Vec3 naca(double m, double p, double t, bool sharp, double x, bool upper, double chord, double z, double inc_deg) {
   double yt = 5 * t * (0.2969 * std::sqrt(x) - 0.1260 * x - 0.3516 * x * x + 0.2843 * std::pow(x, 3) +
@@ -120,11 +116,11 @@ TEST_CASE("naca_wing is deterministic and survives save/load") {
   TestContext a("naca_wing", {}), b("naca_wing", {});
   a.run();
   b.run();
-  CHECK(slurp(a.artifact("shape").path) == slurp(b.artifact("shape").path));
+  CHECK(mftest::read_text(a.artifact("shape").path) == mftest::read_text(b.artifact("shape").path));
   Shape s = Shape::load(a.artifact("shape").path);
   auto dir = meshflow::testing::scratch_dir("resave");
   s.save(dir / "again.mfshape");
-  CHECK(slurp(dir / "again.mfshape") == slurp(a.artifact("shape").path));
+  CHECK(mftest::read_text(dir / "again.mfshape") == mftest::read_text(a.artifact("shape").path));
   Shape t = Shape::load(dir / "again.mfshape");
   for (int f = 0; f < s.num_faces(); ++f) {
     CHECK(t.face_tag(f) == s.face_tag(f));

@@ -2,6 +2,8 @@
 // parameters), the artifact round trip, bad input, and the stage on the naca_wing geometry.
 #include <doctest/doctest.h>
 
+#include "support.hpp"
+
 #include "../cad/test_context.hpp"
 #include "analytic.hpp"
 #include "engine/stage.hpp"
@@ -19,12 +21,6 @@ using mftest::AnalyticModel;
 
 namespace {
 
-std::string slurp(const std::filesystem::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
 
 bool on_face(const MedialObject& M, const MedialPoint& p, int face) {
   for (auto q : p.contacts)
@@ -182,8 +178,8 @@ TEST_CASE("artifact: write/read round trip, deterministic bytes, corrupt files r
   auto dir = meshflow::testing::scratch_dir("medial-io");
   write(A, dir / "a.mfmedial");
   write(B, dir / "b.mfmedial");
-  std::string a = slurp(dir / "a.mfmedial");
-  CHECK(a == slurp(dir / "b.mfmedial"));
+  std::string a = mftest::read_text(dir / "a.mfmedial");
+  CHECK(a == mftest::read_text(dir / "b.mfmedial"));
   MedialObject R = read(dir / "a.mfmedial");
   REQUIRE(R.samples.size() == A.samples.size());
   REQUIRE(R.points.size() == A.points.size());
@@ -191,7 +187,7 @@ TEST_CASE("artifact: write/read round trip, deterministic bytes, corrupt files r
   CHECK(R.points.back().c == A.points.back().c);
   CHECK(R.info[7].lfs == A.info[7].lfs);
   write(R, dir / "c.mfmedial");
-  CHECK(slurp(dir / "c.mfmedial") == a);
+  CHECK(mftest::read_text(dir / "c.mfmedial") == a);
   CHECK(R.summary() == A.summary());
   {
     std::ofstream t(dir / "t.mfmedial", std::ios::binary);

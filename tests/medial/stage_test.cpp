@@ -1,6 +1,8 @@
 // The medial stage end to end on the naca_wing geometry (through the CAD interface).
 #include <doctest/doctest.h>
 
+#include "support.hpp"
+
 #include "../cad/test_context.hpp"
 #include "engine/stage.hpp"
 #include "stages/cad/cad.hpp"
@@ -18,12 +20,6 @@ using meshflow::testing::TestContext;
 using namespace meshflow::medial;
 
 namespace {
-std::string slurp(const std::filesystem::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
 // NACA 00tt half thickness (blunt trailing edge), chord 1.
 double yt(double t, double x) {
   return 5 * t * (0.2969 * std::sqrt(x) - 0.1260 * x - 0.3516 * x * x + 0.2843 * x * x * x - 0.1015 * x * x * x * x);
@@ -38,7 +34,7 @@ TEST_CASE("medial stage on naca_wing: body radius = half thickness at mid-chord,
   a.run();
   b.run();
   auto pa = a.artifact("medial").path;
-  CHECK(slurp(pa) == slurp(b.artifact("medial").path));
+  CHECK(mftest::read_text(pa) == mftest::read_text(b.artifact("medial").path));
   MESSAGE("naca_wing stats: " << a.stats_.dump());
   MedialObject M = read(pa);
   auto cadshape = meshflow::cad::Shape::load(shape.path);
@@ -119,7 +115,7 @@ TEST_CASE("meshflow run: geometry -> heal -> medial, identical bytes with 1 and 
   };
   REQUIRE(run(1, "1") == 0);
   REQUIRE(run(2, "2") == 0);
-  std::string a = slurp(dir / "out1" / "medial.mfmedial"), b = slurp(dir / "out2" / "medial.mfmedial");
+  std::string a = mftest::read_text(dir / "out1" / "medial.mfmedial"), b = mftest::read_text(dir / "out2" / "medial.mfmedial");
   CHECK(a.size() > 1000);
   CHECK(a == b);
   MedialObject M = read(dir / "out1" / "medial.mfmedial");

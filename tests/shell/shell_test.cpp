@@ -2,6 +2,8 @@
 // through the test StageContext, and once through `meshflow run`).
 #include <doctest/doctest.h>
 
+#include "support.hpp"
+
 #include "../cad/test_context.hpp"
 #include "engine/stage.hpp"
 #include "stages/cad/cad.hpp"
@@ -23,12 +25,6 @@ using meshflow::testing::TestContext;
 namespace sh = meshflow::shell;
 
 namespace {
-std::string slurp(const std::filesystem::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
 
 // geometry -> heal -> medial once per geometry variant; the contexts own the files
 struct Inputs {
@@ -64,7 +60,7 @@ TEST_CASE("shell on naca_wing, topology C: no self-intersection, junction blocks
   a.run();
   b.run();
   MESSAGE("shell C stats: " << a.stats_.dump());
-  CHECK(slurp(a.artifact("shell").path) == slurp(b.artifact("shell").path));
+  CHECK(mftest::read_text(a.artifact("shell").path) == mftest::read_text(b.artifact("shell").path));
   CHECK(a.progress_ok_);
   CHECK(a.stats_.at("self_intersections").get<long>() == 0);
   CHECK(a.stats_.at("faces_unsampled").get<long>() == 0);
@@ -258,7 +254,7 @@ TEST_CASE("meshflow run: geometry -> heal -> medial -> shell, artifact summary")
   std::string cmd = std::string(MESHFLOW_EXE) + " run " + (dir / "wf.yaml").string() + " --threads 2 --cache " +
                     (dir / "cache").string() + " --out " + (dir / "out").string() + " > " + (dir / "log").string() + " 2>&1";
   int rc = std::system(cmd.c_str());
-  if (rc != 0) MESSAGE(slurp(dir / "log"));
+  if (rc != 0) MESSAGE(mftest::read_text(dir / "log"));
   REQUIRE(rc == 0);
   sh::ShellData d = sh::read(dir / "out" / "shell.mfshell");
   nlohmann::json s = d.summary();

@@ -3,6 +3,8 @@
 // first_height, boundary faces / CAD lines / parameters, determinism, refusals.
 #include <doctest/doctest.h>
 
+#include "support.hpp"
+
 #include "builders.hpp"
 #include "engine/stage.hpp"
 #include "stages/io/mesh_io.hpp"
@@ -25,12 +27,6 @@ using meshflow::split::split_mesh;
 
 namespace {
 
-std::string slurp(const std::filesystem::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
 
 std::filesystem::path tmpdir(const std::string& tag) {
   static int n = 0;
@@ -354,7 +350,7 @@ TEST_CASE("determinism: identical bytes at 1, 2 and 4 threads") {
     auto r = split_mesh(J.mesh, o, th);
     auto p = d / ("t" + std::to_string(th) + ".msh");
     meshflow::io::write_mesh(r.mesh, p, meshflow::io::MeshFormat::MshBinary);
-    std::string s = slurp(p);
+    std::string s = mftest::read_text(p);
     REQUIRE(s.size() > 1000);
     if (ref.empty()) ref = s;
     CHECK(s == ref);

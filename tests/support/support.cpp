@@ -1,5 +1,8 @@
 #include "support.hpp"
 
+#include <doctest/doctest.h>
+
+#include <algorithm>
 #include <array>
 #include <atomic>
 #include <cstdio>
@@ -68,6 +71,19 @@ ShellResult sh(const std::string& command) {
   while ((n = fread(buf.data(), 1, buf.size(), p)) > 0) out.append(buf.data(), n);
   int st = pclose(p);
   return {WIFEXITED(st) ? WEXITSTATUS(st) : 128, out};
+}
+
+int replay_corpus(const fs::path& dir, int (*entry)(const std::uint8_t*, std::size_t)) {
+  std::vector<fs::path> files;
+  for (auto& e : fs::directory_iterator(dir))
+    if (e.is_regular_file()) files.push_back(e.path());
+  std::sort(files.begin(), files.end());
+  for (auto& f : files) {
+    std::string data = read_text(f);
+    INFO(f.string());
+    CHECK(entry(reinterpret_cast<const std::uint8_t*>(data.data()), data.size()) == 0);
+  }
+  return int(files.size());
 }
 
 }  // namespace mftest

@@ -1,6 +1,8 @@
 // Helpers shared by the test executables: temp folders, files, child processes.
 #pragma once
 
+#include <cstddef>
+#include <cstdint>
 #include <filesystem>
 #include <string>
 #include <vector>
@@ -25,5 +27,9 @@ struct ShellResult {
 };
 // Runs a shell command line.
 ShellResult sh(const std::string& command);
+
+// Feeds every file of a fuzz corpus folder to a libFuzzer entry point (as the fuzzer would),
+// checking that it returns 0; a crash fails the test process. Returns the number of files.
+int replay_corpus(const fs::path& dir, int (*entry)(const std::uint8_t*, std::size_t));
 
 }  // namespace mftest
