@@ -1,8 +1,16 @@
 // Nektar++ XML geometry (uncompressed): read and write.
-// Supported: 2D meshes of triangles and quadrilaterals and 3D meshes of tetrahedra, with
-// CURVED edges (PolyEvenlySpaced, GaussLobattoLegendre) and faces (NodalTriEvenlySpaced,
-// NodalTriElec), COMPOSITE and DOMAIN. Prisms, pyramids and hexahedra are not supported yet
-// (a clear error). XML is parsed with expat.
+// Supported: 2D meshes of triangles and quadrilaterals and 3D meshes of tetrahedra (A),
+// prisms (R), pyramids (P) and hexahedra (H), with T and Q faces, CURVED edges
+// (PolyEvenlySpaced, GaussLobattoLegendre) and faces (triangles: NodalTriEvenlySpaced,
+// NodalTriElec; quadrilaterals: PolyEvenlySpaced, GaussLobattoLegendre as a tensor of 1D
+// points, index i + n j in the face's own frame), COMPOSITE and DOMAIN. XML is parsed with
+// expat. Conventions as in Nektar++'s SpatialDomains (HexGeom/PrismGeom/PyrGeom/QuadGeom):
+// an element lists its faces in Nektar++'s order (hex: bottom, y=-1, x=+1, y=+1, x=-1, top;
+// prism: base quad, tri, quad, tri, quad; pyramid: base quad, then the triangles), its vertex
+// i is the vertex common to the faces VertexFaceConnectivity[i]; a face's vertex 0 is the
+// common vertex of its last and first edge. Prism vertices 0..5 of Nektar++ are our (Gmsh)
+// 0,1,4,3,2,5 (Nektar++'s triangles are its faces 1 and 3). Elements left-handed in a file
+// are mirrored to our positive orientation.
 //
 // Nektar++ stores no element-interior points (it rebuilds them from its expansion). On
 // reading, quadrilateral interiors follow Nektar++'s own rule (edge deviations blended
@@ -283,9 +291,9 @@ Mesh read_nektar(const std::filesystem::path& fp) {
   }
   if (dim == 3)
     for (auto& f : need("FACE")->kids) {
-      if (f->name != "T") fail(path, f.get(), "face type <" + f->name + "> not supported (triangular faces only)");
+      if (f->name != "T" && f->name != "Q") fail(path, f.get(), "face type <" + f->name + "> not supported (T, Q)");
       auto c = numbers(path, f.get());
-      if (c.size() != 3) fail(path, f.get(), "a triangular face needs 3 edge IDs");
+      if (c.size() != (f->name == "T" ? 3u : 4u)) fail(path, f.get(), "a face <" + f->name + "> needs " + (f->name == "T" ? "3" : "4") + " edge IDs");
       std::vector<long> es;
       for (double x : c) {
         if (!g.E.count((long)x)) fail(path, f.get(), "face refers to edge " + std::to_string((long)x) + " which is not defined");
@@ -364,9 +372,56 @@ Mesh read_nektar(const std::filesystem::path& fp) {
       for (int r = 0; r < 3; ++r) a[r] = X(1)[r] - X(0)[r], b[r] = X(2)[r] - X(0)[r], c3[r] = X(3)[r] - X(0)[r];
       double vol = a[0] * (b[1] * c3[2] - b[2] * c3[1]) - a[1] * (b[0] * c3[2] - b[2] * c3[0]) + a[2] * (b[0] * c3[1] - b[1] * c3[0]);
       if (vol < 0) std::swap(el.verts[1], el.verts[2]);
+    } else if (dim == 3 && (e->name == "R" || e->name == "P" || e->name == "H")) {
+      // Nektar++'s prism/pyramid/hexahedron: faces in its order (F0 the base quad, ...);
+      // vertex i is the one common to the faces VertexFaceConnectivity[i] (Nektar++'s
+      // PrismGeom/HexGeom tables), then renumbered to Gmsh's vertex order.
+      static const std::vector<std::vector<int>> hexVF = {{0, 1, 4}, {0, 1, 2}, {0, 2, 3}, {0, 3, 4},
+                                                         {1, 4, 5}, {1, 2, 5}, {2, 3, 5}, {3, 4, 5}};
+      static const std::vector<std::vector<int>> prismVF = {{0, 1, 4}, {0, 1, 2}, {0, 2, 3}, {0, 3, 4}, {1, 2, 4}, {2, 3, 4}};
+      static const std::vector<std::vector<int>> pyrVF = {{0, 1, 4}, {0, 1, 2}, {0, 2, 3}, {0, 3, 4}, {1, 2, 3, 4}};
+      el.s = e->name == "H" ? Shape::Hex : e->name == "R" ? Shape::Prism : Shape::Pyramid;
+      const auto& VF = el.s == Shape::Hex ? hexVF : el.s == Shape::Prism ? prismVF : pyrVF;
+      const size_t nf = el.s == Shape::Hex ? 6 : 5;
+      if (el.sides.size() != nf) fail(path, e.get(), "element <" + e->name + "> needs " + std::to_string(nf) + " face IDs");
+      std::vector<std::set<long>> fverts;
+      for (long sd : el.sides) {
+        if (!g.F.count(sd)) fail(path, e.get(), "element refers to face " + std::to_string(sd) + " which is not defined");
+        std::set<long> vs;
+        for (long ed : g.F.at(sd))
+          for (long v : g.E.at(ed)) vs.insert(v);
+        fverts.push_back(vs);
+      }
+      std::vector<long> nv;
+      for (auto& fs : VF) {
+        std::set<long> common = fverts[fs[0]];
+        for (size_t k = 1; k < fs.size(); ++k) {
+          std::set<long> t;
+          for (long v : common)
+            if (fverts[fs[k]].count(v)) t.insert(v);
+          common = t;
+        }
+        if (common.size() != 1) fail(path, e.get(), "the faces of this element do not meet in its vertices as Nektar++ orders them");
+        nv.push_back(*common.begin());
+      }
+      // Nektar++ -> Gmsh vertex order (the prism's triangles are Nektar's faces 1 and 3)
+      if (el.s == Shape::Prism) el.verts = {nv[0], nv[1], nv[4], nv[3], nv[2], nv[5]};
+      else el.verts = nv;
+      auto X = [&](int i) { return g.V.at(el.verts[i]); };
+      const int o3 = el.s == Shape::Prism ? 2 : 3, o4 = el.s == Shape::Prism ? 3 : 4;
+      double a[3], b[3], c3[3];
+      for (int r = 0; r < 3; ++r) a[r] = X(1)[r] - X(0)[r], b[r] = X(o3)[r] - X(0)[r], c3[r] = X(o4)[r] - X(0)[r];
+      double vol = a[0] * (b[1] * c3[2] - b[2] * c3[1]) - a[1] * (b[0] * c3[2] - b[2] * c3[0]) + a[2] * (b[0] * c3[1] - b[1] * c3[0]);
+      if (vol < 0) {  // left-handed in the file: mirror to our positive orientation
+        if (el.s == Shape::Prism) std::swap(el.verts[1], el.verts[2]), std::swap(el.verts[4], el.verts[5]);
+        else {
+          std::swap(el.verts[1], el.verts[3]);
+          if (el.s == Shape::Hex) std::swap(el.verts[5], el.verts[7]);
+        }
+      }
     } else {
       fail(path, e.get(), "element type <" + e->name + "> in a " + std::to_string(dim) +
-                              "D mesh is not supported (supported: T, Q in 2D; A in 3D)");
+                              "D mesh is not supported (supported: T, Q in 2D; A, R, P, H in 3D)");
     }
     elems.push_back(std::move(el));
   }
@@ -411,6 +466,154 @@ Mesh read_nektar(const std::filesystem::path& fp) {
     for (long v : el.verts) vx.push_back(g.V.at(v));
     const auto& ref = reference_nodes(el.s, P);
     for (int i = 0; i < n; ++i) pos[i] = map_linear(el.s, vx, ref[i]);
+    if (el.s == Shape::Prism || el.s == Shape::Pyramid || el.s == Shape::Hex) {
+      auto edge_id = [&](long va, long vb) {
+        auto it = edge_of.find({std::min(va, vb), std::max(va, vb)});
+        if (it == edge_of.end()) fail(path, nullptr, "element " + std::to_string(el.id) + ": an edge of its faces is not in <EDGE>");
+        return it->second;
+      };
+      for (int i = 0; i < nv; ++i) nodes[i] = vnode.at(el.verts[i]), known[i] = 1;
+      const auto& EN = edge_nodes(el.s, P);
+      for (size_t e = 0; e < EN.size(); ++e) {
+        const long va = el.verts[edge_vertices(el.s)[e][0]], vb = el.verts[edge_vertices(el.s)[e][1]];
+        const long eid = edge_id(va, vb);
+        for (int k = 2; k < (int)EN[e].size(); ++k) {  // Gmsh line order: v0, v1, then 1..P-1
+          const int from_v0 = g.E.at(eid)[0] == va ? k - 1 : P - (k - 1);
+          auto key = std::make_pair(eid, from_v0);
+          auto f = enode.find(key);
+          if (f == enode.end()) {
+            Vec3 x = edge_point(eid, double(from_v0) / P);
+            f = enode.emplace(key, m.add_node(x[0], x[1], x[2])).first;
+          }
+          nodes[EN[e][k]] = f->second;
+          known[EN[e][k]] = 1;
+        }
+      }
+      // face nodes, keyed by their lattice point in the Nektar++ face's own frame (vertex q0 =
+      // common vertex of its last and first edge, axis 0 towards q1, axis 1 towards q3 (quad)
+      // or q2 (triangle)), the frame of its CURVED points
+      const auto& FN = face_nodes(el.s, P);
+      std::vector<int> face_of_node(n, -1);
+      for (size_t f = 0; f < FN.size(); ++f) {
+        const auto& fv = face_vertices(el.s)[f];
+        const bool quad = fv.size() == 4;
+        std::set<long> vs;
+        for (int v : fv) vs.insert(el.verts[v]);
+        auto fit = face_of.find(vs);
+        if (fit == face_of.end()) fail(path, nullptr, "element " + std::to_string(el.id) + ": a face is not in <FACE>");
+        const long fid = fit->second;
+        const auto& fe = g.F.at(fid);
+        if (fe.size() != fv.size()) fail(path, nullptr, "element " + std::to_string(el.id) + ": face " + std::to_string(fid) + " has the wrong number of edges");
+        std::vector<long> q;
+        for (size_t k = 0; k < fe.size(); ++k) q.push_back(common_vertex(g, fe[(k + fe.size() - 1) % fe.size()], fe[k], path, nullptr));
+        static const int CQ[4][2] = {{0, 0}, {1, 0}, {1, 1}, {0, 1}}, CT[3][2] = {{0, 0}, {1, 0}, {0, 1}};
+        auto corner = [&](int local) {
+          const long v = el.verts[fv[local]];
+          const int idx = (int)(std::find(q.begin(), q.end(), v) - q.begin());
+          if (idx >= (int)q.size()) fail(path, nullptr, "face " + std::to_string(fid) + " does not have the element's vertices");
+          return quad ? CQ[idx] : CT[idx];
+        };
+        const auto& flat = lattice(quad ? Shape::Quad : Shape::Tri, P);
+        for (size_t k = 0; k < FN[f].size(); ++k) {
+          const Lattice& L = flat[k];
+          const bool interior = quad ? (L[0] > 0 && L[0] < P && L[1] > 0 && L[1] < P) : (L[0] > 0 && L[1] > 0 && L[0] + L[1] < P);
+          if (!interior) continue;
+          const int li = FN[f][k];
+          face_of_node[li] = (int)f;
+          std::array<int, 3> key = {0, 0, 0};
+          for (int c = 0; c < 2; ++c) {
+            if (quad)  // bilinear in our face frame (exact for the symmetries of the square)
+              key[c] = ((P - L[0]) * (P - L[1]) * corner(0)[c] + L[0] * (P - L[1]) * corner(1)[c] + L[0] * L[1] * corner(2)[c] +
+                        (P - L[0]) * L[1] * corner(3)[c]) / P;
+            else
+              key[c] = (P - L[0] - L[1]) * corner(0)[c] + L[0] * corner(1)[c] + L[1] * corner(2)[c];
+          }
+          auto fkey = std::make_pair(fid, key);
+          auto fn = fnode.find(fkey);
+          if (fn == fnode.end()) {
+            Vec3 x = pos[li];
+            auto cf = g.CF.find(fid);
+            if (cf != g.CF.end()) {
+              const auto& c = cf->second;
+              const double sx = double(key[0]) / P, sy = double(key[1]) / P;
+              x = {0, 0, 0};
+              if (quad) {
+                int n1 = 0;
+                while (n1 * n1 < c.n) ++n1;
+                if (n1 * n1 != c.n) fail(path, c.node, "NUMPOINTS of a quadrilateral face is not a square");
+                auto ts = points1d(c.type, n1, path, c.node);
+                std::vector<double> la(n1), lb(n1), unit(n1, 0.0);
+                for (int a = 0; a < n1; ++a) {
+                  unit.assign(n1, 0.0);
+                  unit[a] = 1;
+                  la[a] = lagrange1d(ts, unit, sx);
+                  lb[a] = lagrange1d(ts, unit, sy);
+                }
+                for (int b2 = 0; b2 < n1; ++b2)
+                  for (int a = 0; a < n1; ++a)
+                    for (int r = 0; r < 3; ++r) x[r] += la[a] * lb[b2] * c.xyz[3 * (a + n1 * b2) + r];
+              } else {
+                int Pf = 0;
+                while ((Pf + 1) * (Pf + 2) / 2 < c.n) ++Pf;
+                if ((Pf + 1) * (Pf + 2) / 2 != c.n) fail(path, c.node, "NUMPOINTS is not a triangle number");
+                LagrangeBasis fb(Shape::Tri, Pf, tri_points(c.type, Pf, path, c.node));
+                std::vector<double> N(fb.size());
+                fb.eval({sx, sy, 0}, N.data());
+                for (int kk = 0; kk < fb.size(); ++kk)
+                  for (int r = 0; r < 3; ++r) x[r] += N[kk] * c.xyz[3 * kk + r];
+              }
+              fcomputed.insert(fkey);
+            }
+            fn = fnode.emplace(fkey, m.add_node(x[0], x[1], x[2])).first;
+          }
+          nodes[li] = fn->second;
+          known[li] = fcomputed.count(fkey) ? 1 : 2;
+        }
+      }
+      // missing nodes (faces without CURVED data, interiors): discrete harmonic extension of
+      // the displacement from the straight element over the lattice (face nodes stay on their face)
+      for (int i = 0; i < n; ++i)
+        if (known[i] == 1) pos[i] = {m.x[nodes[i]], m.y[nodes[i]], m.z[nodes[i]]};
+        else if (known[i] == 0) known[i] = 3;
+      std::vector<Vec3> lin(n);
+      for (int i = 0; i < n; ++i) lin[i] = map_linear(el.s, vx, ref[i]);
+      const auto& lat = lattice(el.s, P);
+      std::map<Lattice, int> at;
+      for (int i = 0; i < n; ++i) at[lat[i]] = i;
+      std::vector<std::set<int>> fset(FN.size());
+      for (size_t f = 0; f < FN.size(); ++f) fset[f].insert(FN[f].begin(), FN[f].end());
+      for (int which : {2, 3})
+        for (int it = 0; it < 300; ++it)
+          for (int i = 0; i < n; ++i) {
+            if (known[i] != which) continue;
+            Vec3 sum = {0, 0, 0};
+            int cnt = 0;
+            for (int d = 0; d < 3; ++d)
+              for (int sg : {1, -1}) {
+                Lattice qn = lat[i];
+                qn[d] += sg;
+                auto fq = at.find(qn);
+                if (fq == at.end()) continue;
+                if (which == 2 && !fset[face_of_node[i]].count(fq->second)) continue;
+                for (int r = 0; r < 3; ++r) sum[r] += pos[fq->second][r] - lin[fq->second][r];
+                ++cnt;
+              }
+            if (cnt)
+              for (int r = 0; r < 3; ++r) pos[i][r] = lin[i][r] + sum[r] / cnt;
+          }
+      for (int i = 0; i < n; ++i) {
+        if (known[i] == 2) {
+          m.x[nodes[i]] = pos[i][0], m.y[nodes[i]] = pos[i][1], m.z[nodes[i]] = pos[i][2];
+          for (auto& [k, v] : fnode)
+            if (v == nodes[i]) fcomputed.insert(k);
+        }
+        if (known[i] == 3) nodes[i] = m.add_node(pos[i][0], pos[i][1], pos[i][2]);
+      }
+      ElementBlock& b = m.block(el.s, P, dim, 1);
+      b.add(nodes.data());
+      b.tags.push_back(el.id + 1);
+      continue;
+    }
     // barycentric-like lattice weights of each node relative to the vertices
     auto weights = [&](const Lattice& L) {
       std::vector<int> w(nv, 0);
@@ -652,8 +855,9 @@ Mesh read_nektar(const std::filesystem::path& fp) {
       if (!(faces && dim == 3) && !(kind == 'E' && dim == 2)) continue;
       m.add_physical(dim - 1, (int)cid, name);
       m.add_entity(dim - 1, (int)cid, {(int)cid});
-      ElementBlock& b = m.block(faces ? Shape::Tri : Shape::Line, P, dim - 1, (int)cid);
       for (long sid : ids) {
+        ElementBlock& b = m.block(faces ? (g.F.count(sid) && g.F.at(sid).size() == 4 ? Shape::Quad : Shape::Tri) : Shape::Line, P,
+                                  dim - 1, (int)cid);
         // find an element using this side and extract the side's nodes from it
         std::vector<long> sv;
         if (faces) {
@@ -707,9 +911,9 @@ void write_nektar(const Mesh& m, const std::filesystem::path& fp) {
   const int P = m.order();
   for (auto& b : m.blocks) {
     if (dimension(b.shape) != dim) continue;
-    bool ok = (dim == 2 && (b.shape == Shape::Tri || b.shape == Shape::Quad)) || (dim == 3 && b.shape == Shape::Tet);
+    bool ok = (dim == 2 && (b.shape == Shape::Tri || b.shape == Shape::Quad)) || dim == 3;
     if (!ok)
-      throw MeshIOError(fp.string() + ": Nektar++ output supports triangles/quadrilaterals (2D) and tetrahedra (3D); this mesh has " +
+      throw MeshIOError(fp.string() + ": Nektar++ output supports triangles/quadrilaterals (2D) and tetrahedra, prisms, pyramids, hexahedra (3D); this mesh has " +
                         shape_name(b.shape) + " elements");
     if (b.order != P) throw MeshIOError(fp.string() + ": Nektar++ output needs one element order for all elements");
   }
@@ -732,7 +936,7 @@ void write_nektar(const Mesh& m, const std::filesystem::path& fp) {
   // edges (sorted by vertex pair) with their nodes from the first element using them
   std::map<std::pair<std::uint32_t, std::uint32_t>, std::pair<long, std::vector<std::uint32_t>>> edges;
   std::map<std::set<std::uint32_t>, std::pair<long, std::vector<std::uint32_t>>> faces;  // face nodes in (a,b,c) order
-  std::map<std::set<std::uint32_t>, std::array<std::uint32_t, 3>> face_verts;
+  std::map<std::set<std::uint32_t>, std::vector<std::uint32_t>> face_verts;
   for (auto& b : m.blocks) {
     if (dimension(b.shape) != dim) continue;
     for (size_t e = 0; e < b.size(); ++e) {
@@ -753,12 +957,14 @@ void write_nektar(const Mesh& m, const std::filesystem::path& fp) {
       if (dim == 3)
         for (size_t fi = 0; fi < face_vertices(b.shape).size(); ++fi) {
           const auto& fv = face_vertices(b.shape)[fi];
-          std::set<std::uint32_t> key = {nd[fv[0]], nd[fv[1]], nd[fv[2]]};
+          std::set<std::uint32_t> key;
+          std::vector<std::uint32_t> fvn;
+          for (int v : fv) key.insert(nd[v]), fvn.push_back(nd[v]);
           if (faces.count(key)) continue;
           std::vector<std::uint32_t> fn;
           for (int ln : face_nodes(b.shape, P)[fi]) fn.push_back(nd[ln]);
           faces[key] = {0, fn};
-          face_verts[key] = {nd[fv[0]], nd[fv[1]], nd[fv[2]]};
+          face_verts[key] = fvn;
         }
     }
   }
@@ -775,13 +981,16 @@ void write_nektar(const Mesh& m, const std::filesystem::path& fp) {
     o << "    <FACE>\n";
     for (auto& [key, v] : faces) {
       v.first = k++;
-      auto fv = face_verts.at(key);
-      o << "      <T ID=\"" << v.first << "\">" << eid(fv[0], fv[1]) << " " << eid(fv[1], fv[2]) << " " << eid(fv[2], fv[0]) << "</T>\n";
+      const auto& fv = face_verts.at(key);
+      const char* L = fv.size() == 4 ? "Q" : "T";
+      o << "      <" << L << " ID=\"" << v.first << "\">";
+      for (size_t q = 0; q < fv.size(); ++q) o << (q ? " " : "") << eid(fv[q], fv[(q + 1) % fv.size()]);
+      o << "</" << L << ">\n";
     }
     o << "    </FACE>\n";
   }
   o << "    <ELEMENT>\n";
-  std::map<int, std::vector<long>> dom_ids;  // entity tag -> element ids
+  std::map<std::pair<int, std::string>, std::vector<long>> dom_ids;  // (entity tag, letter) -> element ids
   long elid = 0;
   std::map<std::set<std::uint32_t>, long> side_id;
   for (auto& b : m.blocks) {
@@ -794,12 +1003,25 @@ void write_nektar(const Mesh& m, const std::filesystem::path& fp) {
         for (int v = 0; v < nv; ++v) o << (v ? " " : "") << eid(nd[v], nd[(v + 1) % nv]);
         o << "</" << (b.shape == Shape::Quad ? "Q" : "T") << ">\n";
       } else {
-        const int F[4][3] = {{0, 1, 2}, {0, 1, 3}, {1, 2, 3}, {0, 2, 3}};
-        o << "      <A ID=\"" << elid << "\">";
-        for (int f = 0; f < 4; ++f) o << (f ? " " : "") << faces.at({nd[F[f][0]], nd[F[f][1]], nd[F[f][2]]}).first;
-        o << "</A>\n";
+        // Nektar++'s face order of each shape, as Gmsh vertex indices (prism: Nektar's
+        // vertices 0,1,2,3,4,5 are our 0,1,4,3,2,5: its triangles are faces 1 and 3)
+        static const std::vector<std::vector<int>> FT = {{0, 1, 2}, {0, 1, 3}, {1, 2, 3}, {0, 2, 3}};
+        static const std::vector<std::vector<int>> FH = {{0, 1, 2, 3}, {0, 1, 5, 4}, {1, 2, 6, 5}, {3, 2, 6, 7}, {0, 3, 7, 4}, {4, 5, 6, 7}};
+        static const std::vector<std::vector<int>> FR = {{0, 1, 4, 3}, {0, 1, 2}, {1, 4, 5, 2}, {3, 4, 5}, {0, 3, 5, 2}};
+        static const std::vector<std::vector<int>> FP = {{0, 1, 2, 3}, {0, 1, 4}, {1, 2, 4}, {3, 2, 4}, {0, 3, 4}};
+        const auto& F = b.shape == Shape::Tet ? FT : b.shape == Shape::Hex ? FH : b.shape == Shape::Prism ? FR : FP;
+        const char* L = b.shape == Shape::Tet ? "A" : b.shape == Shape::Hex ? "H" : b.shape == Shape::Prism ? "R" : "P";
+        o << "      <" << L << " ID=\"" << elid << "\">";
+        for (size_t f = 0; f < F.size(); ++f) {
+          std::set<std::uint32_t> key;
+          for (int v : F[f]) key.insert(nd[v]);
+          o << (f ? " " : "") << faces.at(key).first;
+        }
+        o << "</" << L << ">\n";
       }
-      dom_ids[b.entity_tag].push_back(elid++);
+      dom_ids[{b.entity_tag, dim == 3 ? (b.shape == Shape::Tet ? "A" : b.shape == Shape::Hex ? "H" : b.shape == Shape::Prism ? "R" : "P")
+                                      : (b.shape == Shape::Quad ? "Q" : "T")}]
+          .push_back(elid++);
     }
   }
   o << "    </ELEMENT>\n";
@@ -811,7 +1033,7 @@ void write_nektar(const Mesh& m, const std::filesystem::path& fp) {
       for (auto n : v.second) o << " " << m.x[n] << " " << m.y[n] << " " << m.z[n];
       o << " </E>\n";
     }
-    if (dim == 3 && P >= 3) {
+    if (dim == 3) {
       cid = 0;
       // Nektar order of the equispaced triangle: vertices, edges, interior row by row
       std::vector<int> order;
@@ -826,10 +1048,19 @@ void write_nektar(const Mesh& m, const std::filesystem::path& fp) {
         for (int j = 1; j < P; ++j)
           for (int i = 1; i + j < P; ++i) order.push_back(at[{i, j, 0}]);
       }
+      // quadrilateral faces: (P+1)^2 equispaced points, index i + (P+1) j in the face's
+      // frame (vertex 0 = common vertex of its edges 3 and 0, i towards vertex 1, j towards 3)
+      std::vector<int> qorder((P + 1) * (P + 1));
+      {
+        const auto& ql = lattice(Shape::Quad, P);
+        for (int i = 0; i < (int)ql.size(); ++i) qorder[ql[i][0] + (P + 1) * ql[i][1]] = i;
+      }
       for (auto& [key, v] : faces) {
-        o << "      <F ID=\"" << cid++ << "\" FACEID=\"" << v.first << "\" NUMPOINTS=\"" << (P + 1) * (P + 2) / 2
-          << "\" TYPE=\"NodalTriEvenlySpaced\">";
-        for (int q : order) {
+        const bool quad = key.size() == 4;
+        if (!quad && P < 3) continue;
+        o << "      <F ID=\"" << cid++ << "\" FACEID=\"" << v.first << "\" NUMPOINTS=\""
+          << (quad ? (P + 1) * (P + 1) : (P + 1) * (P + 2) / 2) << "\" TYPE=\"" << (quad ? "PolyEvenlySpaced" : "NodalTriEvenlySpaced") << "\">";
+        for (int q : quad ? qorder : order) {
           auto n = v.second[q];
           o << " " << m.x[n] << " " << m.y[n] << " " << m.z[n];
         }
@@ -854,23 +1085,21 @@ void write_nektar(const Mesh& m, const std::filesystem::path& fp) {
     return s;
   };
   std::string letter = dim == 3 ? "A" : (m.blocks.empty() ? "Q" : "");
-  for (auto& [tag, ids] : dom_ids) {
-    std::string L = "Q";
-    if (dim == 3) L = "A";
-    else
-      for (auto& b : m.blocks)
-        if (dimension(b.shape) == 2 && b.entity_tag == tag) L = b.shape == Shape::Quad ? "Q" : "T";
+  for (auto& [tl, ids] : dom_ids) {
+    const int tag = tl.first;
+    const std::string L = tl.second;
     std::string name = m.group_name(dim, tag);
     o << "      <C ID=\"" << next_c << "\"" << (name.empty() ? "" : " NAME=\"" + name + "\"") << "> " << L << "[" << ranges(ids) << "] </C>\n";
     domain.push_back(next_c++);
   }
   std::map<int, std::vector<long>> bnd;
   for (auto& b : m.blocks) {
-    if (dimension(b.shape) != dim - 1 || (dim == 3 && b.shape != Shape::Tri)) continue;
+    if (dimension(b.shape) != dim - 1) continue;
     for (size_t e = 0; e < b.size(); ++e) {
       const std::uint32_t* nd = b.element(e);
       if (dim == 3) {
-        auto it = faces.find({nd[0], nd[1], nd[2]});
+        std::set<std::uint32_t> key(nd, nd + num_vertices(b.shape));
+        auto it = faces.find(key);
         if (it != faces.end()) bnd[b.entity_tag].push_back(it->second.first);
       } else {
         auto it = edges.find({std::min(nd[0], nd[1]), std::max(nd[0], nd[1])});
