@@ -387,19 +387,25 @@ struct Out {
 
 }  // namespace
 
-void classify_nodes(Mesh& m) {
+namespace {
+// The classification of classify_nodes into separate arrays (write_msh uses it without
+// copying the mesh).
+void classify_into(const Mesh& m, std::vector<int>& cdim, std::vector<int>& ctag) {
   const size_t n = m.num_nodes();
-  if (m.node_entity_dim.size() != n) {
-    m.node_entity_dim.assign(n, -1);
-    m.node_entity_tag.assign(n, -1);
+  if (m.node_entity_dim.size() == n && m.node_entity_tag.size() == n) {
+    cdim = m.node_entity_dim;
+    ctag = m.node_entity_tag;
+  } else {
+    cdim.assign(n, -1);
+    ctag.assign(n, -1);
   }
   for (int d = 0; d <= 3; ++d)
     for (auto& b : m.blocks) {
       if (dimension(b.shape) != d) continue;
       for (auto idx : b.nodes)
-        if (m.node_entity_dim[idx] < 0) {
-          m.node_entity_dim[idx] = b.entity_dim;
-          m.node_entity_tag[idx] = b.entity_tag;
+        if (cdim[idx] < 0) {
+          cdim[idx] = b.entity_dim;
+          ctag[idx] = b.entity_tag;
         }
     }
   // nodes used by no element: the highest-dimensional entity (or a new volume entity)
@@ -410,7 +416,15 @@ void classify_nodes(Mesh& m) {
     if (b.entity_dim > fd) fd = b.entity_dim, ft = b.entity_tag;
   if (fd < 0) fd = 3, ft = 1;
   for (size_t i = 0; i < n; ++i)
-    if (m.node_entity_dim[i] < 0) m.node_entity_dim[i] = fd, m.node_entity_tag[i] = ft;
+    if (cdim[i] < 0) cdim[i] = fd, ctag[i] = ft;
+}
+}  // namespace
+
+void classify_nodes(Mesh& m) {
+  std::vector<int> d, t;
+  classify_into(m, d, t);
+  m.node_entity_dim = std::move(d);
+  m.node_entity_tag = std::move(t);
 }
 
 Mesh read_msh(const std::filesystem::path& path) {
@@ -448,18 +462,20 @@ Mesh read_msh(const std::filesystem::path& path) {
 
 void write_msh(const Mesh& in, const std::filesystem::path& path, bool binary) {
   in.check();
-  Mesh m_copy;
-  const Mesh* mp = &in;
-  bool need_classify = in.node_entity_dim.size() != in.num_nodes();
+  // node classification: the mesh's own, completed (classify_nodes) in separate arrays
+  // when some nodes have none (no copy of the mesh)
+  const Mesh& m = in;
+  const std::vector<int>* ndim = &in.node_entity_dim;
+  const std::vector<int>* ntag = &in.node_entity_tag;
+  std::vector<int> cdim, ctag;
+  bool need_classify = in.node_entity_dim.size() != in.num_nodes() || in.node_entity_tag.size() != in.num_nodes();
   if (!need_classify)
     for (int d : in.node_entity_dim)
       if (d < 0) need_classify = true;
   if (need_classify) {
-    m_copy = in;
-    classify_nodes(m_copy);
-    mp = &m_copy;
+    classify_into(in, cdim, ctag);
+    ndim = &cdim, ntag = &ctag;
   }
-  const Mesh& m = *mp;
   const size_t n = m.num_nodes();
 
   // entities: declared ones plus any referenced by blocks or nodes, sorted by (dim, tag)
@@ -470,8 +486,8 @@ void write_msh(const Mesh& in, const std::filesystem::path& path, bool binary) {
     e.dim = b.entity_dim, e.tag = b.entity_tag;
   }
   for (size_t i = 0; i < n; ++i) {
-    auto& e = ents[{m.node_entity_dim[i], m.node_entity_tag[i]}];
-    e.dim = m.node_entity_dim[i], e.tag = m.node_entity_tag[i];
+    auto& e = ents[{(*ndim)[i], (*ntag)[i]}];
+    e.dim = (*ndim)[i], e.tag = (*ntag)[i];
   }
   // bounding boxes missing: from the nodes of the entity's elements and its own nodes
   std::map<std::pair<int, int>, std::array<double, 6>> bb;
@@ -484,7 +500,7 @@ void write_msh(const Mesh& in, const std::filesystem::path& path, bool binary) {
   };
   for (auto& b : m.blocks)
     for (auto i : b.nodes) grow({b.entity_dim, b.entity_tag}, i);
-  for (size_t i = 0; i < n; ++i) grow({m.node_entity_dim[i], m.node_entity_tag[i]}, (std::uint32_t)i);
+  for (size_t i = 0; i < n; ++i) grow({(*ndim)[i], (*ntag)[i]}, (std::uint32_t)i);
   for (auto& [k, e] : ents)
     if (!std::isfinite(e.bbox[0])) {
       auto it = bb.find(k);
@@ -492,7 +508,11 @@ void write_msh(const Mesh& in, const std::filesystem::path& path, bool binary) {
     }
 
   Out o{{}, binary};
-  o.s.reserve(n * 40 + m.num_elements() * 8 * 12 + 4096);
+  {  // the binary size (nodes: tag, xyz, up to 2 parameters; elements: tag and node tags)
+    std::size_t est = n * 48 + 65536;
+    for (auto& b : m.blocks) est += b.size() * 8 * (1 + b.nodes_per_element()) + 64;
+    o.s.reserve(binary ? est : est * 3);
+  }
   o.txt(binary ? "$MeshFormat\n4.1 1 8\n" : "$MeshFormat\n4.1 0 8\n");
   if (binary) {
     int one = 1;
@@ -527,7 +547,7 @@ void write_msh(const Mesh& in, const std::filesystem::path& path, bool binary) {
 
   // nodes grouped by entity
   std::map<std::pair<int, int>, std::vector<std::uint32_t>> groups;
-  for (size_t i = 0; i < n; ++i) groups[{m.node_entity_dim[i], m.node_entity_tag[i]}].push_back((std::uint32_t)i);
+  for (size_t i = 0; i < n; ++i) groups[{(*ndim)[i], (*ntag)[i]}].push_back((std::uint32_t)i);
   std::uint64_t tmin = n ? ~0ull : 0, tmax = 0;
   for (size_t i = 0; i < n; ++i) tmin = std::min(tmin, m.node_tag(i)), tmax = std::max(tmax, m.node_tag(i));
   o.txt("$Nodes\n");
