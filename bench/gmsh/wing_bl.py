@@ -24,7 +24,7 @@ ap.add_argument("cad")
 ap.add_argument("out")
 ap.add_argument("--scale", type=float, default=1e-3, help="unit scale applied to the CAD (mm->m: 1e-3)")
 ap.add_argument("--walls", default="auto",
-                help="comma-separated OCC face tags to extrude, or 'auto' = every face not lying on the bounding box")
+                help="comma-separated OCC face tags or ranges (1-123) to extrude, or 'auto' = every face not lying on the bounding box")
 ap.add_argument("--heal", type=int, default=0, help="OCC healing on import (OCCFixDegenerated/SewFaces/MakeSolids)")
 ap.add_argument("--layers", type=int, default=10)
 ap.add_argument("--ratio", type=float, default=1.5)
@@ -84,7 +84,10 @@ try:
     if a.walls == "auto":
         walls = [t for t in faces if not on_box(t)]
     else:
-        walls = [int(x) for x in a.walls.split(",")]
+        walls = []
+        for x in a.walls.split(","):
+            lo, _, hi = x.partition("-")
+            walls += list(range(int(lo), int(hi or lo) + 1))
     stats["walls"] = walls
     lap("import")
 
@@ -341,8 +344,12 @@ try:
     if a.hoopt:
         stats["stage"] = "HighOrderOptimize"
         gmsh.option.setNumber("Mesh.HighOrderOptimize", a.hoopt)
-        gmsh.model.mesh.optimize("HighOrder" if a.hoopt == 2 else "HighOrderFastCurving"
-                                 if a.hoopt == 4 else "HighOrderElastic")
+        # Mesh.HighOrderOptimize is applied by generate(), not by the API's setOrder(), so the
+        # same methods are called explicitly: 2 = elastic then optimization, 4 = fast curving,
+        # 1 = optimization, 3 = elastic.
+        for m in {1: ["HighOrder"], 2: ["HighOrderElastic", "HighOrder"], 3: ["HighOrderElastic"],
+                  4: ["HighOrderFastCurving"]}[a.hoopt]:
+            gmsh.model.mesh.optimize(m)
         lap("ho_optimize")
     stats["stage"] = "stats"
 

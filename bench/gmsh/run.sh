@@ -1,0 +1,32 @@
+#!/usr/bin/env bash
+# Gmsh half of the side-by-side benchmark (issue 8). Each variant is a separate process under
+# /usr/bin/time -v and timeout; each mesh is then judged by Gmsh's Plugin(AnalyseMeshQuality)
+# (bench/gmsh/analyse.py) and by `meshflow quality --json`. Raw logs go to $OUT (not committed);
+# bench/gmsh/report.py turns them into bench/results/gmsh.md.
+# Usage: bench/gmsh/run.sh [MESHFLOW_BINARY] [OUT_DIR]
+set -uo pipefail
+cd "$(dirname "$0")/../.."
+MF=${1:-build-gmshbench/meshflow}
+OUT=${2:-/tmp/meshflow-gmshbench}
+TMO=${TMO:-300}
+mkdir -p "$OUT"
+WING="/work/shared/data/wingtip/3d_bl_wing.stp --heal 1 --scale 1e-3 --walls auto --wall-size 0.05 --curv 12 --far-size 0.5 --first-height 4.4e-4"
+DLR="/work/shared/data/dlr_f6/dlr_f6.brep --heal 0 --scale 1e-3 --walls 1-123 --wall-size 0.03 --curv 8 --far-size 0.2 --first-height 5e-5"
+run() {  # name cadargs hoopt
+  local name=$1 args=$2 ho=$3
+  echo "== $name (HighOrderOptimize $ho)"
+  /usr/bin/time -v -o "$OUT/$name.time" timeout "$TMO" /usr/bin/python3 bench/gmsh/wing_bl.py \
+      ${args%% *} "$OUT/$name.msh" ${args#* } --layers 10 --ratio 1.5 --order 4 --hoopt "$ho" > "$OUT/$name.log" 2>&1
+  echo "rc=$?" >> "$OUT/$name.time"
+  if [ -s "$OUT/$name.msh" ]; then
+    timeout "$TMO" /usr/bin/python3 bench/gmsh/analyse.py "$OUT/$name.msh" > "$OUT/$name.analyse" 2>&1
+    timeout "$TMO" "$MF" quality "$OUT/$name.msh" --json > "$OUT/$name.quality.json" 2> "$OUT/$name.quality.err"
+    rm -f "$OUT/$name.msh"   # P4 meshes are large; nothing is kept
+  fi
+}
+for ho in 0 4 2; do
+  run wing_ho$ho "$WING" $ho
+  run dlrf6_ho$ho "$DLR" $ho
+done
+/usr/bin/python3 bench/gmsh/report.py "$OUT" > bench/results/gmsh.md
+echo "wrote bench/results/gmsh.md"
