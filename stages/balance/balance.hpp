@@ -45,7 +45,9 @@
 // t_e = integral over the edge of ds / h(s), h(s) = clamp(turn_angle × rho(s), min_size,
 // max_size), rho = 1/curvature (|C' x C''| / |C'|^3 from cad::Shape::edge_eval on CAD edges;
 // the discrete turning angle per length on the sampled shell/junction curves). For constant h
-// this is length / h. Cross-section edges are straight (t = length / h).
+// this is length / h. Cross-section edges are straight (t = length / max_size). Targets below 1
+// are raised to 1 (an edge shorter than the local size needs one division and is not counted as
+// a deviation; otherwise a 0.0025-long blunt trailing edge would dominate the objective).
 //
 // ── Infeasible problems ────────────────────────────────────────────────────────────────
 // solve_intervals throws InfeasibleError (a StageError) whose message names a minimal set of

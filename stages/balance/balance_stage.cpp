@@ -204,7 +204,7 @@ class Stage {
     for (std::size_t i = 0; i < prob.edges.size(); ++i) {
       auto [L, t] = measure(prob.edges[i].name, sd);
       length[i] = L;
-      prob.edges[i].target = std::max(t, 1e-3);  // a degenerate edge still needs a positive target
+      prob.edges[i].target = std::max(t, 1.0);  // every edge needs one division: a shorter one is not 'off target'
     }
 
     // ── solve ──
