@@ -95,6 +95,10 @@ for geo, rs in rows.items():
     for var, tv, st, an, q in rs:
         if st.get("times_s"):
             print("- %s: Gmsh step times (s) %s" % (var, json.dumps(st["times_s"])))
+        if st.get("footprint_loops") == [] and st.get("stage") != "done":
+            print("  - the layer's top surface has no boundary loop (0 footprint loops): the extruded walls' mesh closes on "
+                  "itself or the footprint on the symmetry plane was not found, so no hole was cut in the box and the tet "
+                  "mesher saw the layer intersect the box face")
         if st.get("footprint_offplane_max") is not None:
             print("  - layer footprint off the box side by up to %.3g before projection; %s box nodes shared with the layer"
                   % (st["footprint_offplane_max"], st.get("box_nodes_shared_with_layer", "?")))
@@ -107,7 +111,9 @@ for geo, rs in rows.items():
         if q is not None and an and an.get("views"):
             v = an["views"][0]
             gt = set(v.get("nonpositive_tags", [])); mt = set(q.get("invalid_elements", []))
-            if gt or mt:
+            if "nonpositive_tags" not in v:
+                print("  - (this AnalyseMeshQuality log predates recording the element tags; only counts compare)")
+            elif gt or mt:
                 print("  - invalid element tags: Gmsh %s, meshflow %s, in both %d" % (sorted(gt)[:12], sorted(mt)[:12], len(gt & mt)))
             print("  - checkers: Gmsh %d invalid (min %.4g), meshflow %d invalid (min scaled J %.4g, %d elements checked)"
                   % (v["nonpositive"], v["min"], q["invalid"], q["min_scaled_jacobian"], sum(q.get("elements", {}).values())))
