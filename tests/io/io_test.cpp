@@ -610,3 +610,22 @@ TEST_CASE("quality --json and convert commands; artifact type 'mesh' is register
   t->formats.at("nektar").write(stored, exported);
   CHECK(fs::file_size(exported) > 1000);
 }
+
+TEST_CASE("Gmsh-made meshes of every 3D type (shared/data/highorder) survive msh -> Nektar++ xml -> model") {
+  for (std::string f : {"v4.1_cube_all.msh", "v4.1_cube_hex.msh", "v4.1_cube_prism.msh", "v4.1_cube_tet.msh"}) {
+    INFO(f);
+    Mesh m = io::read_mesh(kData + f);
+    auto x = tmpdir() / "cube.xml";
+    io::write_nektar(m, x);
+    Mesh r = io::read_mesh(x);
+    auto a = mesh_stats(m), b = mesh_stats(r);
+    CHECK(a["order"] == b["order"]);
+    CHECK(a["elements"] == b["elements"]);
+    CHECK(a["boundary"] == b["boundary"]);
+    CHECK(b["invalid"] == 0);
+    CHECK(b["nonconforming_faces"] == 0);
+    for (int k = 0; k < 6; ++k)  // edge points pass through Nektar++'s interpolation: rounding only
+      CHECK(b["bbox"][k].get<double>() == doctest::Approx(a["bbox"][k].get<double>()).epsilon(1e-11));
+    CHECK(b["min_scaled_jacobian"].get<double>() == doctest::Approx(a["min_scaled_jacobian"].get<double>()).epsilon(1e-9));
+  }
+}
