@@ -157,7 +157,7 @@ TEST_CASE("linearise_invalid_quad.xml: exactly one invalid element, the one whos
 TEST_CASE("round trips msh binary / msh ascii / vtu preserve every type and order 1-6") {
   for (Shape s : {Shape::Line, Shape::Tri, Shape::Quad, Shape::Tet, Shape::Prism, Shape::Pyramid, Shape::Hex})
     for (int p = 1; p <= 6; ++p) {
-      INFO(shape_name(s) << " order " << p);
+      INFO(std::string(shape_name(s)) << " order " << p);
       Mesh m = one_element(s, p);
       auto f1 = tmpdir() / "a.msh", f2 = tmpdir() / "b.msh", f3 = tmpdir() / "c.vtu";
       io::write_msh(m, f1, true);

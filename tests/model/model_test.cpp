@@ -101,7 +101,7 @@ TEST_CASE("Lagrange bases interpolate at their nodes and reproduce linear fields
         b.eval(b.nodes()[i], N.data());
         for (int k = 0; k < b.size(); ++k) err = std::max(err, std::abs(N[k] - (i == k)));
       }
-      INFO(shape_name(s) << " order " << p);
+      INFO(std::string(shape_name(s)) << " order " << p);
       CHECK(err < 1e-8);
       // gradient of x + 2y - z is (1, 2, -1) everywhere
       Vec3 xi = {0.21, 0.13, s == Shape::Pyramid ? 0.3 : 0.11};
@@ -125,7 +125,7 @@ TEST_CASE("straight elements are valid with scaled Jacobian 1; swapped vertices 
     for (int p = 1; p <= 6; ++p) {
       auto X = straight(s, p, 2, 1, 0.5);
       auto q = element_quality(s, p, X.data());
-      INFO(shape_name(s) << " order " << p);
+      INFO(std::string(shape_name(s)) << " order " << p);
       CHECK(q.valid);
       CHECK(q.scaled_jacobian == doctest::Approx(1).epsilon(1e-9));
       // mirror the element: every det J < 0
@@ -181,7 +181,7 @@ TEST_CASE("curved but valid P=4 elements are certified valid") {
       X[i + 2] += 0.05 * std::cos(X[i + 1]) * (dimension(s) == 3);
     }
     auto q = element_quality(s, 4, X.data());
-    INFO(shape_name(s));
+    INFO(std::string(shape_name(s)));
     CHECK(q.valid);
     CHECK(q.scaled_jacobian < 1);
     CHECK(q.scaled_jacobian > 0.5);
@@ -264,7 +264,7 @@ TEST_CASE("high orders: Bezier validity is proven (not sampled) up to P=6 except
         const double amp = 0.02 + 0.04 * (trial % 4);
         for (size_t i = 0; i < X.size(); ++i) X[i] += amp * U(rng) / p;
         auto q = element_quality(s, p, X.data());
-        INFO(shape_name(s) << " P=" << p << " trial " << trial);
+        INFO(std::string(shape_name(s)) << " P=" << p << " trial " << trial);
         CHECK(q.sampled == (s == Shape::Hex && p == 6));
         const int F = s == Shape::Hex ? 7 : 10;
         double mn = 1e300, J[9];
@@ -293,7 +293,7 @@ TEST_CASE("high orders: Bezier validity is proven (not sampled) up to P=6 except
         }
         CHECK_FALSE(q.inconclusive);
       }
-      INFO(shape_name(s) << " P=" << p << ": proven " << proven << ", invalid " << invalid);
+      INFO(std::string(shape_name(s)) << " P=" << p << ": proven " << proven << ", invalid " << invalid);
       if (!(s == Shape::Hex && p == 6)) CHECK(proven > 0);
       CHECK(invalid > 0);
     }
