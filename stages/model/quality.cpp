@@ -297,8 +297,8 @@ struct JacobianSpace {
       // A coefficient is trusted positive only above the rounding bound
       // kKappa * amplification * (max over samples of the Hadamard bound of det J), see
       // classify(); where that bound would exceed 14% of det J's scale the transform cannot
-      // certify anything useful and we fall back to sampling (reported as "sampling"):
-      // this is only the case for hexahedra of order >= 6 (and pyramids, always sampled).
+      // certify anything useful: hexahedra of order >= 6, proven by Bernstein arithmetic
+      // instead (hex_bezier_validity); pyramids are always sampled.
       auto rowsum = [](const Eigen::MatrixXd& A) { return A.cwiseAbs().rowwise().sum().maxCoeff(); };
       amplification = T.size() ? rowsum(T)
                       : s == Shape::Prism ? rowsum(Ta) * rowsum(Tb)
@@ -446,13 +446,198 @@ void refine(const JacobianSpace& sp, const double* X, const double* normal, Elem
 }
 
 // Classifies element e of a chunk given its det values and coefficients.
+// ---- Hexahedra of high order: det J in Bernstein form by Bernstein arithmetic ----
+// The interpolation transform of det J (degree 3P-1 per direction) is too ill-conditioned at
+// P >= 6; instead the mapping's nodes are converted to Bernstein control points (degree P, a
+// well-conditioned 1D transform per direction), differentiated in Bernstein form, and det J's
+// coefficients formed exactly as sums of products ("scaled" Bernstein coefficients b*C(n,i)
+// multiply by plain convolution), with positive weights only. Every operation is also done on
+// absolute values, which bounds the rounding. Subdivision: de Casteljau at t = 1/2 per axis.
+struct Tensor {  // coefficients on (n0+1)(n1+1)(n2+1), index (i*(n1+1)+j)*(n2+1)+k
+  int n[3] = {0, 0, 0};
+  std::vector<double> c;
+  Tensor() = default;
+  Tensor(int a, int b, int d) : n{a, b, d}, c(std::size_t(a + 1) * (b + 1) * (d + 1), 0.0) {}
+  double& at(int i, int j, int k) { return c[(std::size_t(i) * (n[1] + 1) + j) * (n[2] + 1) + k]; }
+  double at(int i, int j, int k) const { return c[(std::size_t(i) * (n[1] + 1) + j) * (n[2] + 1) + k]; }
+};
+// plain 3D convolution of scaled coefficients (A, B scaled: product is scaled)
+Tensor convolve(const Tensor& A, const Tensor& B) {
+  Tensor C(A.n[0] + B.n[0], A.n[1] + B.n[1], A.n[2] + B.n[2]);
+  for (int i = 0; i <= A.n[0]; ++i)
+    for (int j = 0; j <= A.n[1]; ++j)
+      for (int k = 0; k <= A.n[2]; ++k) {
+        const double a = A.at(i, j, k);
+        if (a == 0) continue;
+        for (int p = 0; p <= B.n[0]; ++p)
+          for (int q = 0; q <= B.n[1]; ++q) {
+            const double* b = &B.c[(std::size_t(p) * (B.n[1] + 1) + q) * (B.n[2] + 1)];
+            double* c = &C.at(i + p, j + q, k);
+            for (int r = 0; r <= B.n[2]; ++r) c[r] += a * b[r];
+          }
+      }
+  return C;
+}
+void axpy(Tensor& Y, double s, const Tensor& X) {
+  for (std::size_t i = 0; i < Y.c.size(); ++i) Y.c[i] += s * X.c[i];
+}
+Tensor absval(const Tensor& A) {
+  Tensor B = A;
+  for (auto& v : B.c) v = std::abs(v);
+  return B;
+}
+void scale_binomial(Tensor& T, bool divide) {  // multiply (or divide) by C(n0,i)C(n1,j)C(n2,k)
+  for (int i = 0; i <= T.n[0]; ++i)
+    for (int j = 0; j <= T.n[1]; ++j)
+      for (int k = 0; k <= T.n[2]; ++k) {
+        const double w = binom(T.n[0], i) * binom(T.n[1], j) * binom(T.n[2], k);
+        T.at(i, j, k) = divide ? T.at(i, j, k) / w : T.at(i, j, k) * w;
+      }
+}
+// de Casteljau split along axis `ax` at t = 1/2: lower (half 0) or upper (half 1) part
+Tensor split(const Tensor& T, int ax, int half) {
+  Tensor R = T;
+  const int n = T.n[ax];
+  int idx[3];
+  const int m0 = ax == 0 ? 0 : T.n[0], m1 = ax == 1 ? 0 : T.n[1], m2 = ax == 2 ? 0 : T.n[2];
+  std::vector<double> b(n + 1), out(n + 1);
+  for (idx[0] = 0; idx[0] <= m0; ++idx[0])
+    for (idx[1] = 0; idx[1] <= m1; ++idx[1])
+      for (idx[2] = 0; idx[2] <= m2; ++idx[2]) {
+        int w[3] = {idx[0], idx[1], idx[2]};
+        for (int i = 0; i <= n; ++i) w[ax] = i, b[i] = T.at(w[0], w[1], w[2]);
+        for (int r = 0; r <= n; ++r) {  // after r steps b[0] is the lower part's r-th coefficient
+          if (half == 0) out[r] = b[0];
+          else out[n - r] = b[n - r];
+          for (int i = 0; i < n - r; ++i) b[i] = 0.5 * (b[i] + b[i + 1]);
+        }
+        for (int i = 0; i <= n; ++i) w[ax] = i, R.at(w[0], w[1], w[2]) = out[i];
+      }
+  return R;
+}
+// Bernstein coefficients of det J (and a bound of their rounding) of a hex of order P.
+void hex_det_bezier(int P, const double* X, Tensor& det, double& err) {
+  // 1D equispaced Lagrange -> Bernstein of degree P (long double, rounded once)
+  static std::mutex mu;
+  static std::vector<double> cache[kMaxOrder + 1];
+  std::vector<double> L2B;
+  {
+    std::lock_guard<std::mutex> lock(mu);
+    if (cache[P].empty()) {
+      Eigen::Matrix<LD, Eigen::Dynamic, Eigen::Dynamic> M(P + 1, P + 1);
+      for (int q = 0; q <= P; ++q)
+        for (int a = 0; a <= P; ++a) M(q, a) = (LD)binom(P, a) * std::pow((LD)q / P, (LD)a) * std::pow(1 - (LD)q / P, (LD)(P - a));
+      Eigen::Matrix<LD, Eigen::Dynamic, Eigen::Dynamic> Mi = M.fullPivLu().inverse();
+      cache[P].resize((P + 1) * (P + 1));
+      for (int a = 0; a <= P; ++a)
+        for (int q = 0; q <= P; ++q) cache[P][a * (P + 1) + q] = (double)Mi(a, q);
+    }
+    L2B = cache[P];
+  }
+  const auto& lat = lattice(Shape::Hex, P);
+  Tensor B[3];
+  for (int r = 0; r < 3; ++r) {
+    Tensor V(P, P, P);
+    for (std::size_t i = 0; i < lat.size(); ++i) V.at(lat[i][0], lat[i][1], lat[i][2]) = X[3 * i + r];
+    for (int ax = 0; ax < 3; ++ax) {  // apply L2B along each axis
+      Tensor W(P, P, P);
+      for (int i = 0; i <= P; ++i)
+        for (int j = 0; j <= P; ++j)
+          for (int k = 0; k <= P; ++k) {
+            double s = 0;
+            for (int q = 0; q <= P; ++q) {
+              const int a[3] = {ax == 0 ? q : i, ax == 1 ? q : j, ax == 2 ? q : k};
+              s += L2B[(ax == 0 ? i : ax == 1 ? j : k) * (P + 1) + q] * V.at(a[0], a[1], a[2]);
+            }
+            W.at(i, j, k) = s;
+          }
+      V = W;
+    }
+    B[r] = V;
+  }
+  // derivatives (d/dxi = P/2 * forward differences), in scaled form
+  Tensor D[3][3];  // D[r][c] = d x_r / d xi_c
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) {
+      Tensor T(c == 0 ? P - 1 : P, c == 1 ? P - 1 : P, c == 2 ? P - 1 : P);
+      for (int i = 0; i <= T.n[0]; ++i)
+        for (int j = 0; j <= T.n[1]; ++j)
+          for (int k = 0; k <= T.n[2]; ++k)
+            T.at(i, j, k) = 0.5 * P * (B[r].at(i + (c == 0), j + (c == 1), k + (c == 2)) - B[r].at(i, j, k));
+      scale_binomial(T, false);
+      D[r][c] = T;
+    }
+  // det = x_xi (y_eta z_zeta - y_zeta z_eta) + x_eta (y_zeta z_xi - y_xi z_zeta) + x_zeta (y_xi z_eta - y_eta z_xi)
+  det = Tensor(3 * P - 1, 3 * P - 1, 3 * P - 1);
+  Tensor bound = det;
+  const int perm[3][3] = {{0, 1, 2}, {1, 2, 0}, {2, 0, 1}};  // (c0 ; c1, c2) of each term
+  for (auto& pc : perm) {
+    const int c0 = pc[0], c1 = pc[1], c2 = pc[2];
+    Tensor cof = convolve(D[1][c1], D[2][c2]);
+    axpy(cof, -1, convolve(D[1][c2], D[2][c1]));
+    Tensor cofa = convolve(absval(D[1][c1]), absval(D[2][c2]));
+    axpy(cofa, 1, convolve(absval(D[1][c2]), absval(D[2][c1])));
+    axpy(det, 1, convolve(D[0][c0], cof));
+    axpy(bound, 1, convolve(absval(D[0][c0]), cofa));
+  }
+  scale_binomial(det, true);
+  scale_binomial(bound, true);
+  double bmax = 0;
+  for (double b : bound.c) bmax = std::max(bmax, b);
+  // products/sums of <= (P+1)^3 terms per coefficient, the control points' own rounding
+  err = bmax * 1e-11;
+}
+// Proves validity of a hex by its det J coefficients, subdividing (de Casteljau) up to depth 6.
+void hex_bezier_validity(int P, const double* X, ElementQuality& q) {
+  Tensor det;
+  double err = 0;
+  hex_det_bezier(P, X, det, err);
+  std::deque<std::pair<Tensor, int>> todo;
+  todo.push_back({std::move(det), 0});
+  int visited = 0;
+  const int n = 3 * P - 1;
+  while (!todo.empty()) {
+    auto [T, depth] = std::move(todo.front());
+    todo.pop_front();
+    if (++visited > 600) {
+      q.inconclusive = true;
+      return;
+    }
+    // corner coefficients are values of det J: one <= 0 (beyond rounding) proves invalidity
+    for (int i : {0, n})
+      for (int j : {0, n})
+        for (int k : {0, n})
+          if (T.at(i, j, k) < -err) {
+            q.valid = false;
+            return;
+          }
+    const double mn = *std::min_element(T.c.begin(), T.c.end());
+    if (mn > err) continue;
+    if (depth >= 6) {
+      q.inconclusive = true;
+      continue;
+    }
+    for (int a = 0; a < 2; ++a) {
+      Tensor Ta = split(T, 0, a);
+      for (int b = 0; b < 2; ++b) {
+        Tensor Tb = split(Ta, 1, b);
+        for (int c = 0; c < 2; ++c) todo.push_back({split(Tb, 2, c), depth + 1});
+      }
+    }
+  }
+}
+
 void classify(const JacobianSpace& sp, const double* X, const double* normal, const double* vals,
               const double* coef, double href, ElementQuality& q) {
   const int np = (int)sp.pts.size();
   q.min_det = *std::min_element(vals, vals + np);
   q.max_det = *std::max_element(vals, vals + np);
   q.aspect_ratio = aspect(sp.shape, X);
-  if (!sp.bezier) {
+  if (!sp.bezier && sp.shape == Shape::Hex && q.min_det > 0) {
+    hex_bezier_validity(sp.order, X, q);  // Bernstein arithmetic (proof), see above
+  } else if (!sp.bezier && sp.shape == Shape::Hex) {
+    q.valid = false;  // a sample with det J <= 0
+  } else if (!sp.bezier) {
     q.sampled = true;
     q.valid = q.min_det > 0;
   } else if (q.min_det <= 0) {
@@ -657,12 +842,11 @@ nlohmann::json mesh_stats(const Mesh& m, int threads) {
   std::size_t sampled_pyr = 0;
   for (size_t bi = 0; bi < m.blocks.size(); ++bi)
     if (m.blocks[bi].shape == Shape::Pyramid) sampled_pyr += q[bi].size();
-  // proven (Bezier bounds): triangles, quads, tets, prisms of order <= 6 (and up to 10 where
-  // the transform stays well conditioned), hexahedra of order <= 5; sampled: the rest
+  // proven (Bezier bounds): every shape but the pyramid; sampled: pyramids
   j["validity_method"] =
       sampled ? "bezier (proven) for " + std::to_string(total - sampled) + " elements; sampling (not proven) for " +
-                    std::to_string(sampled) + " elements: " + std::to_string(sampled_pyr) + " pyramids (rational space), " +
-                    std::to_string(sampled - sampled_pyr) + " of degrees whose Bezier transform is too ill-conditioned (hexahedra P >= 6)"
+                    std::to_string(sampled) + " elements: " + std::to_string(sampled_pyr) + " pyramids (rational space)" +
+                    (sampled > sampled_pyr ? ", " + std::to_string(sampled - sampled_pyr) + " others" : std::string())
               : std::string("bezier (proven for every element)");
   j["sampled"] = sampled;
   sj_edges.back() = 1.0;

@@ -13,9 +13,12 @@
 // otherwise the domain is subdivided (simplices into 4/8, boxes into 4/8, prisms into 8) and
 // each part is checked again (up to depth 6; still inconclusive then = valid, reported in
 // "inconclusive"). This is the method of Johnen, Remacle and Geuzaine (2013) that Gmsh uses.
-// Proven this way: triangles, quads, tets and prisms up to P=6, hexahedra up to P=5. Hexahedra
-// of order >= 6 (|transform| ~ 7e14, the bound exceeds det J's scale) are sampled at the
-// Bezier lattice, like pyramids: "sampled" in ElementQuality, named in "validity_method".
+// Proven this way: triangles, quads, tets and prisms up to P=6, hexahedra up to P=5.
+// Hexahedra of order >= 6 (|transform| ~ 7e14: the bound would exceed det J's scale) get det J's
+// Bernstein coefficients by Bernstein arithmetic instead: control points of the mapping (a
+// well-conditioned degree-P transform), derivatives in Bernstein form, products by convolution
+// of scaled coefficients (positive weights), rounding bounded by the same computation on
+// absolute values; subdivision by de Casteljau. So every shape but the pyramid is proven.
 // Pyramids (sampling): Gmsh's pyramidal space is rational, so det J is not a polynomial; we
 // sample det J at the equispaced pyramid lattice of order 3P+2 (apex excluded). A pyramid
 // valid at all samples but invalid between them can be missed.
