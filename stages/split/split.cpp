@@ -915,7 +915,9 @@ Result split_mesh(const Mesh& in, const Options& opt, int threads) {
           nb.add(ev);
           continue;
         }
-        auto [flag, N] = it->second;
+        // Plain copies, not a structured binding: clang 14 (make fuzz) cannot capture bindings.
+        const auto flag = it->second.first;
+        const auto N = it->second.second;
         auto node_at = [&](std::uint32_t o) -> std::uint32_t {  // offset from ev[0]
           if (o == 0) return ev[0];
           if (o == N) return ev[1];
