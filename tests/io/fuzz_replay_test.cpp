@@ -7,21 +7,11 @@
 #define MESHFLOW_NEKTAR_FUZZ_ENTRY meshflow_nektar_fuzz_one
 #include "../fuzz/nektar_fuzz.cpp"
 
-#include <sstream>
+#include "support.hpp"
 
 namespace {
 int replay(const char* corpus, int (*entry)(const std::uint8_t*, std::size_t)) {
-  int n = 0;
-  for (auto& e : std::filesystem::directory_iterator(std::filesystem::path(MESHFLOW_SOURCE_DIR) / "tests/fuzz/corpus" / corpus)) {
-    std::ifstream in(e.path(), std::ios::binary);
-    std::ostringstream s;
-    s << in.rdbuf();
-    const std::string data = s.str();
-    INFO(e.path().string());
-    CHECK_NOTHROW(CHECK(entry(reinterpret_cast<const std::uint8_t*>(data.data()), data.size()) == 0));
-    ++n;
-  }
-  return n;
+  return mftest::replay_corpus(std::filesystem::path(MESHFLOW_SOURCE_DIR) / "tests/fuzz/corpus" / corpus, entry);
 }
 }  // namespace
 

@@ -29,7 +29,8 @@ struct ShellResult {
 ShellResult sh(const std::string& command);
 
 // Feeds every file of a fuzz corpus folder to a libFuzzer entry point (as the fuzzer would),
-// checking that it returns 0; a crash fails the test process. Returns the number of files.
+// checking that it returns 0 and throws nothing; a crash fails the test process. Returns the
+// number of files.
 int replay_corpus(const fs::path& dir, int (*entry)(const std::uint8_t*, std::size_t));
 
 }  // namespace mftest
