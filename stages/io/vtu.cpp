@@ -124,7 +124,12 @@ Mesh read_vtu(const std::filesystem::path& path) {
   for (size_t p = d.find("<DataArray"); p != std::string::npos && p < app; p = d.find("<DataArray", p + 1)) {
     std::string tag = d.substr(p, d.find('>', p) - p);
     if (attr(tag, "format") != "appended") c.fail("DataArray not in appended format", false, p);
-    arrays[attr(tag, "Name")] = {attr(tag, "type"), std::stoull(attr(tag, "offset").empty() ? "0" : attr(tag, "offset"))};
+    // The offset must be a plain decimal (std::stoull would throw on garbage; found by fuzzing).
+    std::string off = attr(tag, "offset");
+    if (off.empty()) off = "0";
+    if (off.size() > 19 || off.find_first_not_of("0123456789") != std::string::npos)
+      c.fail("DataArray " + attr(tag, "Name") + " has offset \"" + off.substr(0, 40) + "\", not a byte offset", false, p);
+    arrays[attr(tag, "Name")] = {attr(tag, "type"), size_t(std::stoull(off))};
   }
   auto get = [&](const std::string& name, const std::string& type, size_t elem) -> std::pair<const char*, size_t> {
     auto it = arrays.find(name);

@@ -1,4 +1,4 @@
-// Replays every input of the MSH and Nektar++ fuzz corpora (seeds and the reproducers of
+// Replays every input of the MSH, Nektar++ and VTU fuzz corpora (seeds and the reproducers of
 // crashes found and fixed) through the fuzz targets' entry points, in the normal build.
 #include <doctest/doctest.h>
 
@@ -6,6 +6,8 @@
 #include "../fuzz/msh_fuzz.cpp"
 #define MESHFLOW_NEKTAR_FUZZ_ENTRY meshflow_nektar_fuzz_one
 #include "../fuzz/nektar_fuzz.cpp"
+#define MESHFLOW_VTU_FUZZ_ENTRY meshflow_vtu_fuzz_one
+#include "../fuzz/vtu_fuzz.cpp"
 
 #include "support.hpp"
 
@@ -20,3 +22,5 @@ TEST_CASE("msh fuzz corpus replays without a crash or an unclean error") { CHECK
 TEST_CASE("nektar fuzz corpus replays without a crash or an unclean error") {
   CHECK(replay("nektar", meshflow_nektar_fuzz_one) >= 7);
 }
+
+TEST_CASE("vtu fuzz corpus replays without a crash or an unclean error") { CHECK(replay("vtu", meshflow_vtu_fuzz_one) >= 8); }
