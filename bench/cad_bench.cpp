@@ -3,6 +3,7 @@
 // and with a hint, 1 and 2 threads (one Shape::clone() per thread).
 // Writes a Markdown fragment to bench/results/cad.md (argv[1] overrides the path).
 // Build and run: cmake --build BUILD --target cad_bench && BUILD/bench/cad_bench
+#include "bench_context.hpp"
 #include "engine/registry.hpp"
 #include "engine/stage.hpp"
 #include "stages/cad/cad.hpp"
@@ -26,41 +27,8 @@ using Clock = std::chrono::steady_clock;
 using meshflow::cad::Shape;
 
 namespace {
-double secs(Clock::time_point a) { return std::chrono::duration<double>(Clock::now() - a).count(); }
-
-class Ctx : public meshflow::StageContext {
- public:
-  Ctx(nlohmann::json p, std::vector<meshflow::Artifact> in, fs::path dir)
-      : p_(std::move(p)), in_(std::move(in)), dir_(std::move(dir)) {}
-  const nlohmann::json& params() const override { return p_; }
-  const std::string& stage_name() const override { return name_; }
-  const std::vector<meshflow::Artifact>& inputs() const override { return in_; }
-  fs::path output(const std::string& name, const std::string& type) override {
-    out_ = {name, type, "", name_, dir_ / (name + std::to_string(n_++) + ".mfshape")};
-    return out_.path;
-  }
-  fs::path file(const std::string& v) const override { return v; }
-  void progress(double, const std::string&) override {}
-  void log(const std::string&) override {}
-  nlohmann::json& stats() override { return st_; }
-  int threads() const override { return 1; }
-  meshflow::Artifact out_;
-  nlohmann::json st_ = nlohmann::json::object();
-
- private:
-  nlohmann::json p_;
-  std::vector<meshflow::Artifact> in_;
-  fs::path dir_;
-  std::string name_ = "bench";
-  static inline int n_ = 0;
-};
-
-nlohmann::json with_defaults(const std::string& kind, nlohmann::json p) {
-  nlohmann::json props = meshflow::schema_for(kind)->value("properties", nlohmann::json::object());
-  for (auto& [k, v] : props.items())
-    if (!p.contains(k) && v.contains("default")) p[k] = v["default"];
-  return p;
-}
+using meshflow::bench::BenchContext;
+using meshflow::bench::secs;
 
 struct ImportHeal {
   double t_import, t_heal;
@@ -69,12 +37,12 @@ struct ImportHeal {
 };
 ImportHeal import_heal(const fs::path& file, const fs::path& dir) {
   ImportHeal r;
-  Ctx imp(with_defaults("step", {{"file", file.string()}}), {}, dir);
+  BenchContext imp("step", {{"file", file.string()}}, {}, dir);
   auto t0 = Clock::now();
   meshflow::find_stage_kind("step")->run(imp);
   r.t_import = secs(t0);
   r.faces_in = imp.st_["faces"];
-  Ctx h(with_defaults("heal", nlohmann::json::object()), {imp.out_}, dir);
+  BenchContext h("heal", nlohmann::json::object(), {imp.out_}, dir);
   t0 = Clock::now();
   meshflow::find_stage_kind("heal")->run(h);
   r.t_heal = secs(t0);

@@ -4,6 +4,7 @@
 // the parametric naca_wing, the paper's wing STEP and the DLR-F6 BREP (after heal).
 // Writes a Markdown fragment to bench/results/medial.md (argv[1] overrides the path).
 // Build and run: cmake --build BUILD --target medial_bench && BUILD/bench/medial_bench
+#include "bench_context.hpp"
 #include "engine/registry.hpp"
 #include "engine/stage.hpp"
 #include "stages/medial/medial.hpp"
@@ -27,49 +28,16 @@ using Clock = std::chrono::steady_clock;
 using namespace meshflow::medial;
 
 namespace {
-double secs(Clock::time_point a) { return std::chrono::duration<double>(Clock::now() - a).count(); }
 double peak_mb() {
   rusage ru{};
   getrusage(RUSAGE_SELF, &ru);
   return ru.ru_maxrss / 1024.0;
 }
-
-class Ctx : public meshflow::StageContext {
- public:
-  Ctx(nlohmann::json p, std::vector<meshflow::Artifact> in, fs::path dir)
-      : p_(std::move(p)), in_(std::move(in)), dir_(std::move(dir)) {}
-  const nlohmann::json& params() const override { return p_; }
-  const std::string& stage_name() const override { return name_; }
-  const std::vector<meshflow::Artifact>& inputs() const override { return in_; }
-  fs::path output(const std::string& name, const std::string& type) override {
-    out_ = {name, type, "", name_, dir_ / (name + std::to_string(n_++) + ".out")};
-    return out_.path;
-  }
-  fs::path file(const std::string& v) const override { return v; }
-  void progress(double, const std::string&) override {}
-  void log(const std::string&) override {}
-  nlohmann::json& stats() override { return st_; }
-  int threads() const override { return 1; }
-  meshflow::Artifact out_;
-  nlohmann::json st_ = nlohmann::json::object();
-
- private:
-  nlohmann::json p_;
-  std::vector<meshflow::Artifact> in_;
-  fs::path dir_;
-  std::string name_ = "bench";
-  static inline int n_ = 0;
-};
-
-nlohmann::json with_defaults(const std::string& kind, nlohmann::json p) {
-  nlohmann::json props = meshflow::schema_for(kind)->value("properties", nlohmann::json::object());
-  for (auto& [k, v] : props.items())
-    if (!p.contains(k) && v.contains("default")) p[k] = v["default"];
-  return p;
-}
+using meshflow::bench::BenchContext;
+using meshflow::bench::secs;
 meshflow::Artifact run(const std::string& kind, nlohmann::json p, std::vector<meshflow::Artifact> in, const fs::path& dir,
                        nlohmann::json* stats = nullptr) {
-  Ctx c(with_defaults(kind, std::move(p)), std::move(in), dir);
+  BenchContext c(kind, std::move(p), std::move(in), dir);
   meshflow::find_stage_kind(kind)->run(c);
   if (stats) *stats = c.st_;
   return c.out_;
