@@ -65,11 +65,11 @@
 // nodes are the n+1 parameters of the edge's nodes, ends included, increasing:
 //   param "cad": parameters of CAD edge `cad_edge` (its curve's direction) — for "w", "s",
 //     "j" and "e" names; "s<e>"/"j<e>*" nodes are those of "w<e>" (the wall nodes they are
-//     swept/offset from, so junction blocks stay structured), at equal arc length on the wall
-//     edge;
+//     swept/offset from, so junction blocks stay structured), graded on the wall edge by the
+//     sizing (equal increments of the integral of ds / h(s), equal arc length where h is constant);
 //   param "fraction": fractions in [0,1] of a straight cross-section edge, from its first
 //     point to its second as named ("0a": P0 -> PA).
-// Node placement is equal arc length; the least-squares skew reduction across junction blocks
+// Node placement follows the sizing (see above); the least-squares skew reduction across junction blocks
 // (paper §III.D, second step) is NOT done yet.
 #pragma once
 

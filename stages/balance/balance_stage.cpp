@@ -41,9 +41,10 @@ struct Sizing {
   }
 };
 
-// A CAD edge tabulated for targets and arc-length node placement.
+// A CAD edge tabulated for targets and sizing-graded node placement.
 struct CadEdgeTable {
   std::vector<double> t, s;  // parameters and cumulative arc length at kSamples+1 points
+  std::vector<double> c;     // cumulative target (integral of ds / h) at the same points
   double length = 0, target = 0;
 };
 
@@ -57,30 +58,33 @@ CadEdgeTable tabulate(const cad::Shape& shape, int e, const Sizing& S) {
     return sp > 0 ? norm(cross(d1, d2)) / (sp * sp * sp) : 0.0;
   };
   double dt = (r.hi - r.lo) / kSamples, s = 0, n = 0;
-  T.t.push_back(r.lo), T.s.push_back(0);
+  T.t.push_back(r.lo), T.s.push_back(0), T.c.push_back(0);
   double sp0, k0 = speed_kappa(r.lo, sp0);
   for (int i = 0; i < kSamples; ++i) {
     double a = r.lo + i * dt, b = i + 1 == kSamples ? r.hi : a + dt;
     double spm, km = speed_kappa(0.5 * (a + b), spm), sp1, k1 = speed_kappa(b, sp1);
     s += (b - a) / 6 * (sp0 + 4 * spm + sp1);
     n += (b - a) / 6 * (sp0 / S.h(k0) + 4 * spm / S.h(km) + sp1 / S.h(k1));
-    T.t.push_back(b), T.s.push_back(s);
+    T.t.push_back(b), T.s.push_back(s), T.c.push_back(n);
     sp0 = sp1, k0 = k1;
   }
   T.length = s, T.target = n;
   return T;
 }
 
-// Parameters of n+1 nodes at equal arc length.
+// Parameters of n+1 nodes at equal increments of the target integral (ds / h): nodes are
+// graded by the sizing (dense where the curvature rule asks, e.g. around a leading edge), as
+// the integer program's targets assume; equal arc length where h is constant.
 std::vector<double> arc_nodes(const CadEdgeTable& T, int n) {
   std::vector<double> out;
   std::size_t j = 0;
+  const std::vector<double>& C = T.c.back() > 0 ? T.c : T.s;
   for (int k = 0; k <= n; ++k) {
     if (k == 0) { out.push_back(T.t.front()); continue; }
     if (k == n) { out.push_back(T.t.back()); continue; }
-    double s = T.length * k / n;
-    while (j + 2 < T.s.size() && T.s[j + 1] < s) ++j;
-    double f = T.s[j + 1] > T.s[j] ? (s - T.s[j]) / (T.s[j + 1] - T.s[j]) : 0;
+    double s = C.back() * k / n;
+    while (j + 2 < C.size() && C[j + 1] < s) ++j;
+    double f = C[j + 1] > C[j] ? (s - C[j]) / (C[j + 1] - C[j]) : 0;
     out.push_back(T.t[j] + f * (T.t[j + 1] - T.t[j]));
   }
   return out;
@@ -265,7 +269,7 @@ class Stage {
                          {"columns", sol.columns},
                          {"size_min", S.hmin},
                          {"size_max", S.hmax},
-                         {"node_placement", "equal arc length (least-squares skew reduction not done)"}};
+                         {"node_placement", "equal increments of the sizing integral (least-squares skew reduction not done)"}};
     D.stats_json = st.dump();  // deterministic part only: no times in the artifact
     write(D, ctx.output("divisions", "divisions"));
 

@@ -31,13 +31,64 @@
 //              the near field. All linear (order 1), every element valid.
 //   periodic   one PeriodicLink per periodic_hi face, edge and vertex (slave = hi, master =
 //              lo, affine = the 4x4 transformation lo → hi), with node pairs.
+//
+// ── Junction blocks ────────────────────────────────────────────────────────────────────
+// A hex_junction block of the shell along wall edge j (faces A, B) gives per division node k
+// of "w<j>" four nodes P0 (on j), PA (on face A), PB (on face B), PC (the outer corner), and one
+// hex per division. Its strips (P0..PA on A, P0..PB on B) are quads of faces A and B; the
+// rest of A and B is triangulated inside the curves PA(t) and PB(t). At an end vertex V the
+// cross-section is shared by every junction block ending there (e.g. the root of a blunt
+// trailing edge, where the junctions of the wing surface and of the trailing-edge face meet):
+// PB is the mean of the blocks' PB projected on B, PA lies on the CAD edge of A leaving V (the
+// edge is cut there: the part V..PA is the strip's side, the rest keeps its divisions mapped
+// affinely), and PC is PA's shell image from that edge's field. So neighbouring junctions
+// share their end faces (the junction fans out around a convex corner, as averaged normals
+// do) and the prisms next to the strips share the layer edge PA -> PC.
+// Wall nodes are swept to their shell images by the shell's fields (vertex value, edge field,
+// face grid: the shell's RULE FOR SWEEP); nodes of the strip boundaries map to PC.
+// Wall|other edges that are not junctions (topology O, or tags not in junction_with): the
+// prism's side quad lies on the other face, whose triangulation starts at the images.
 #pragma once
 
 #include "stages/model/mesh.hpp"
+
+#include <nlohmann/json_fwd.hpp>
+
+#include <cstddef>
+#include <functional>
+#include <string>
+
+namespace meshflow::cad { class Shape; }
+namespace meshflow::shell { struct ShellData; }
+namespace meshflow::balance { struct Divisions; }
 
 namespace meshflow::sweep {
 
 // Physical group tags of the contract above.
 enum PhysicalTag : int { wall = 1, farfield = 2, symmetry = 3, periodic_lo = 4, periodic_hi = 5, fluid = 10 };
+
+struct Options {
+  // Sizes are lengths (the stage scales the schema's relative values).
+  double turn_angle_deg = 30;  // curvature rule: h = turn_angle × radius of curvature
+  double min_size = 0.01, max_size = 0.1;  // on the walls (the divisions' sizing)
+  double farfield_size = 1.0;  // upper size on faces and edges that are not walls
+  double grading = 0.3;        // h(x) <= h_boundary + grading × distance
+  double refine_ratio = 1.3;   // refine a triangle while its longest edge > ratio × h
+  int smooth_passes = 4;
+};
+
+struct Report {
+  std::size_t wall_triangles = 0, strip_quads = 0, slide_quads = 0, boundary_triangles = 0;
+  std::size_t prisms = 0, hexes = 0, junction_blocks = 0, edges_cut = 0;
+  std::size_t thinned = 0;  // node moves that thinned the layer to untangle prisms
+  std::size_t nodes = 0, faces_meshed = 0;
+  double surface_seconds = 0, total_seconds = 0;
+  nlohmann::json to_json() const;
+};
+
+// The surface mesh of every face and the one-layer near field. Throws meshflow::StageError
+// naming the face/edge/block when something cannot be meshed or an element would be invalid.
+model::Mesh sweep_mesh(const cad::Shape& shape, const shell::ShellData& shell, const balance::Divisions& div,
+                       const Options& opt, Report& report, const std::function<void(const std::string&)>& log = {});
 
 }  // namespace meshflow::sweep

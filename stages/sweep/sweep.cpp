@@ -1,0 +1,901 @@
+// meshflow sweep (see sweep.hpp): surface meshes of all faces and the one-layer near field.
+// CAD through stages/cad/cad.hpp, the parameter-plane mesher in uv_mesher.cpp (CGAL).
+#include "stages/sweep/sweep.hpp"
+
+#include "engine/stage.hpp"
+#include "stages/balance/balance.hpp"
+#include "stages/cad/cad.hpp"
+#include "stages/model/quality.hpp"
+#include "stages/shell/shell.hpp"
+#include "stages/sweep/uv_mesher.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <map>
+#include <optional>
+#include <set>
+#include <cstdlib>
+#include <sstream>
+
+namespace meshflow::sweep {
+namespace {
+
+using V3 = std::array<double, 3>;
+constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
+
+V3 v3(const cad::Vec3& p) { return {p.x, p.y, p.z}; }
+cad::Vec3 cv(const V3& p) { return {p[0], p[1], p[2]}; }
+V3 add(V3 a, V3 b) { return {a[0] + b[0], a[1] + b[1], a[2] + b[2]}; }
+V3 sub(V3 a, V3 b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
+V3 mul(V3 a, double s) { return {a[0] * s, a[1] * s, a[2] * s}; }
+double dot(V3 a, V3 b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+V3 cross(V3 a, V3 b) { return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]}; }
+double norm(V3 a) { return std::sqrt(dot(a, a)); }
+V3 lerp(V3 a, V3 b, double s) { return add(a, mul(sub(b, a), s)); }
+V3 jv3(const nlohmann::json& j) { return {j.at(0).get<double>(), j.at(1).get<double>(), j.at(2).get<double>()}; }
+
+std::string fmt(V3 p) {
+  std::ostringstream o;
+  o.precision(6);
+  o << "(" << p[0] << ", " << p[1] << ", " << p[2] << ")";
+  return o.str();
+}
+
+int tag_physical(cad::Tag t) {
+  switch (t) {
+    case cad::Tag::wall: return wall;
+    case cad::Tag::farfield: return farfield;
+    case cad::Tag::symmetry: return symmetry;
+    case cad::Tag::periodic_lo: return periodic_lo;
+    case cad::Tag::periodic_hi: return periodic_hi;
+    default: return 0;
+  }
+}
+
+struct Junction {
+  int edge = -1, A = -1, B = -1;
+  std::array<int, 2> vertices{-1, -1};
+  struct Station {
+    double t;
+    V3 P0, PA, PB, PC;
+    std::array<double, 2> uvA, uvB;
+  };
+  std::vector<Station> st;
+  // per division node k of w<edge>: the four nodes
+  std::vector<std::uint32_t> p0, pa, pb, pc;
+  // interpolated station at edge parameter t
+  Station at(double t) const {
+    if (st.size() == 1 || t <= st.front().t) return st.front();
+    if (t >= st.back().t) return st.back();
+    auto it = std::upper_bound(st.begin(), st.end(), t, [](double x, const Station& s) { return x < s.t; });
+    const Station& b = *it;
+    const Station& a = *(it - 1);
+    double s = (b.t > a.t) ? (t - a.t) / (b.t - a.t) : 0;
+    Station r;
+    r.t = t;
+    r.P0 = lerp(a.P0, b.P0, s), r.PA = lerp(a.PA, b.PA, s), r.PB = lerp(a.PB, b.PB, s), r.PC = lerp(a.PC, b.PC, s);
+    r.uvA = {a.uvA[0] + s * (b.uvA[0] - a.uvA[0]), a.uvA[1] + s * (b.uvA[1] - a.uvA[1])};
+    r.uvB = {a.uvB[0] + s * (b.uvB[0] - a.uvB[0]), a.uvB[1] + s * (b.uvB[1] - a.uvB[1])};
+    return r;
+  }
+};
+
+// A cut of a CAD edge near one of its ends: the node at parameter t is a junction corner.
+struct Cut {
+  double t = 0;
+  std::uint32_t node = kNone;
+};
+
+class Builder {
+ public:
+  Builder(const cad::Shape& s, const shell::ShellData& sh, const balance::Divisions& dv, const Options& o, Report& r,
+          const std::function<void(const std::string&)>& log)
+      : S(s), SH(sh), DV(dv), O(o), R(r), log_(log) {}
+
+  model::Mesh run();
+
+ private:
+  const cad::Shape& S;
+  const shell::ShellData& SH;
+  const balance::Divisions& DV;
+  Options O;
+  Report& R;
+  std::function<void(const std::string&)> log_;
+  model::Mesh m;
+  int nf = 0, ne = 0, nv = 0;
+  std::vector<char> wall;
+  std::vector<std::uint32_t> vnode;
+  std::vector<std::vector<double>> et;           // node parameters per edge (increasing)
+  std::vector<std::vector<std::uint32_t>> en;    // nodes per edge
+  std::vector<std::array<Cut, 2>> cuts;          // per edge: at its first / last vertex
+  std::vector<Junction> J;
+  std::vector<int> junction_of;                  // edge -> index in J or -1
+  std::vector<int> slide_other;                  // edge -> the non-wall face it slides on, or -1
+  std::vector<int> slide_wall;                   // edge -> its wall face
+  std::map<std::uint32_t, std::uint32_t> image;  // wall node -> shell node
+  std::map<std::uint32_t, std::array<double, 2>> uv_on;  // node classified on a face -> (u, v) (lookup helper)
+  std::vector<std::vector<std::array<std::uint32_t, 3>>> face_tris;  // per face
+  std::vector<std::vector<std::array<std::uint32_t, 4>>> face_quads;  // per face
+
+  void log(const std::string& s) {
+    if (log_) log_(s);
+  }
+  std::uint32_t mk(V3 x, int dim, int tag, double u = NAN, double v = NAN) {
+    std::uint32_t i = m.add_node(x[0], x[1], x[2]);
+    if (m.node_entity_dim.size() <= i) {  // add_node extends the arrays only once they exist
+      m.node_entity_dim.resize(i + 1, -1), m.node_entity_tag.resize(i + 1, -1);
+      m.node_u.resize(i + 1, NAN), m.node_v.resize(i + 1, NAN);
+    }
+    m.node_entity_dim[i] = dim;
+    m.node_entity_tag[i] = tag;
+    m.node_u[i] = u;
+    m.node_v[i] = v;
+    return i;
+  }
+  V3 X(std::uint32_t i) const { return {m.x[i], m.y[i], m.z[i]}; }
+  double edge_h(int e, double t, double hmax) const;
+  std::vector<double> own_division(int e, double hmax) const;
+  void junction_ends();
+  void build_edges();
+  void build_junction_curves();
+  void build_slides();
+  void mesh_face(int f);
+  std::uint32_t shell_image(std::uint32_t n, int face);
+  void volume();
+  void untangle(std::vector<std::vector<std::uint32_t>>& prisms);
+};
+
+double Builder::edge_h(int e, double t, double hmax) const {
+  auto d = S.edge_eval(e, t);
+  V3 d1 = v3(d.d1), d2 = v3(d.d2);
+  double s = norm(d1);
+  double k = s > 0 ? norm(cross(d1, d2)) / (s * s * s) : 0;
+  double theta = O.turn_angle_deg * M_PI / 180;
+  double h = k > 0 ? theta / k : hmax;
+  return std::clamp(h, O.min_size, hmax);
+}
+
+// Divisions of an edge that balance did not divide (far field, symmetry, ...): the turn-angle
+// rule capped by hmax, nodes at equal arc length (the same rule balance uses for targets).
+std::vector<double> Builder::own_division(int e, double hmax) const {
+  auto r = S.edge_range(e);
+  const int M = 200;
+  std::vector<double> t(M + 1), s(M + 1, 0.0);
+  double target = 0;
+  for (int i = 0; i <= M; ++i) t[i] = r.lo + (r.hi - r.lo) * i / M;
+  for (int i = 1; i <= M; ++i) {
+    double ds = S.edge_length(e, t[i - 1], t[i]);
+    s[i] = s[i - 1] + ds;
+    target += ds / edge_h(e, 0.5 * (t[i - 1] + t[i]), hmax);
+  }
+  int n = std::max(1, static_cast<int>(std::lround(target)));
+  if (S.edge_vertices(e)[0] == S.edge_vertices(e)[1]) n = std::max(n, 3);  // a closed edge needs a polygon
+  std::vector<double> out(n + 1);
+  out[0] = r.lo, out[n] = r.hi;
+  for (int k = 1; k < n; ++k) {
+    double sk = s[M] * k / n;
+    int i = static_cast<int>(std::upper_bound(s.begin(), s.end(), sk) - s.begin());
+    i = std::clamp(i, 1, M);
+    double a = (s[i] > s[i - 1]) ? (sk - s[i - 1]) / (s[i] - s[i - 1]) : 0;
+    out[k] = t[i - 1] + a * (t[i] - t[i - 1]);
+  }
+  return out;
+}
+
+// ── junction ends: one shared cross-section per vertex ──────────────────────────────────
+void Builder::junction_ends() {
+  std::map<int, std::vector<std::pair<int, int>>> at;  // vertex -> (junction, end)
+  for (int b = 0; b < static_cast<int>(J.size()); ++b)
+    for (int end = 0; end < 2; ++end) at[J[b].vertices[end]].push_back({b, end});
+  std::set<int> jedges;
+  for (auto& j : J) jedges.insert(j.edge);
+  for (auto& [V, list] : at) {
+    V3 P0 = v3(S.vertex_point(V));
+    // the edge of face `f` at V other than the junction edges: where the cross-section lies
+    auto side_edge = [&](int f) {
+      int found = -1;
+      for (int e : S.face_edges(f)) {
+        if (S.edge_degenerate(e) || jedges.count(e)) continue;
+        auto vs = S.edge_vertices(e);
+        if (vs[0] == V || vs[1] == V) {
+          if (found >= 0 && found != e) return -2;  // ambiguous
+          found = e;
+        }
+      }
+      return found;
+    };
+    auto station = [&](int b, int end) -> const Junction::Station& { return end == 0 ? J[b].st.front() : J[b].st.back(); };
+    // PA: per distinct A face; unified when the A faces share the edge leaving V
+    std::map<int, std::vector<std::pair<int, int>>> byA;
+    for (auto [b, end] : list) byA[J[b].A].push_back({b, end});
+    std::map<int, std::uint32_t> pa_node, pc_node;  // per A face
+    std::map<int, std::uint32_t> edge_corner;        // side edge -> PA node on it
+    std::map<int, std::uint32_t> edge_corner_pc;
+    for (auto& [A, bl] : byA) {
+      int e = side_edge(A);
+      V3 PA{0, 0, 0}, PC{0, 0, 0};
+      for (auto [b, end] : bl) PA = add(PA, station(b, end).PA), PC = add(PC, station(b, end).PC);
+      PA = mul(PA, 1.0 / bl.size()), PC = mul(PC, 1.0 / bl.size());
+      if (e >= 0) {
+        if (edge_corner.count(e)) {
+          pa_node[A] = edge_corner[e], pc_node[A] = edge_corner_pc[e];
+          continue;
+        }
+        // project the mean of all blocks' PA that lie near this edge (the A faces sharing it)
+        std::vector<V3> pts;
+        for (auto& [A2, bl2] : byA)
+          if (side_edge(A2) == e)
+            for (auto [b, end] : bl2) pts.push_back(station(b, end).PA);
+        V3 mean{0, 0, 0};
+        for (auto& p : pts) mean = add(mean, p);
+        mean = mul(mean, 1.0 / pts.size());
+        auto pr = S.project_to_edge(e, cv(mean));
+        auto vs = S.edge_vertices(e);
+        int cend = (vs[0] == V) ? 0 : 1;
+        if (vs[0] == V && vs[1] == V) {  // a closed edge: the nearer end
+          auto rr = S.edge_range(e);
+          cend = (pr.t - rr.lo < rr.hi - pr.t) ? 0 : 1;
+        }
+        std::uint32_t n = mk(v3(pr.point), 1, e + 1, pr.t);
+        cuts[e][cend] = {pr.t, n};
+        ++R.edges_cut;
+        auto [th, d] = SH.edge_field(e, pr.t, A);
+        std::uint32_t c = mk(add(v3(pr.point), mul(V3{d[0], d[1], d[2]}, th)), 3, 1);
+        edge_corner[e] = n, edge_corner_pc[e] = c;
+        pa_node[A] = n, pc_node[A] = c;
+      } else {
+        auto& st0 = station(bl[0].first, bl[0].second);
+        auto pr = S.project_to_face(A, cv(PA), cad::Vec2{st0.uvA[0], st0.uvA[1]});
+        std::uint32_t n = mk(v3(pr.point), 2, A + 1, pr.u, pr.v);
+        uv_on[n] = {pr.u, pr.v};
+        pa_node[A] = n;
+        pc_node[A] = mk(PC, 3, 1);
+      }
+    }
+    // PB: per distinct B face
+    std::map<int, std::vector<std::pair<int, int>>> byB;
+    for (auto [b, end] : list) byB[J[b].B].push_back({b, end});
+    std::map<int, std::uint32_t> pb_node;
+    for (auto& [B, bl] : byB) {
+      V3 PB{0, 0, 0};
+      for (auto [b, end] : bl) PB = add(PB, station(b, end).PB);
+      PB = mul(PB, 1.0 / bl.size());
+      int e = side_edge(B);
+      if (e >= 0 && !edge_corner.count(e)) {
+        auto pr = S.project_to_edge(e, cv(PB));
+        auto vs = S.edge_vertices(e);
+        int cend = (vs[0] == V) ? 0 : 1;
+        std::uint32_t n = mk(v3(pr.point), 1, e + 1, pr.t);
+        cuts[e][cend] = {pr.t, n};
+        ++R.edges_cut;
+        pb_node[B] = n;
+      } else if (e >= 0) {
+        pb_node[B] = edge_corner[e];
+      } else {
+        auto& st0 = station(bl[0].first, bl[0].second);
+        auto pr = S.project_to_face(B, cv(PB), cad::Vec2{st0.uvB[0], st0.uvB[1]});
+        std::uint32_t n = mk(v3(pr.point), 2, B + 1, pr.u, pr.v);
+        uv_on[n] = {pr.u, pr.v};
+        pb_node[B] = n;
+      }
+    }
+    for (auto [b, end] : list) {
+      auto& j = J[b];
+      std::size_t k = end == 0 ? 0 : j.pa.size() - 1;
+      j.pa[k] = pa_node[j.A], j.pc[k] = pc_node[j.A], j.pb[k] = pb_node[j.B];
+    }
+    (void)P0;
+  }
+}
+
+void Builder::build_edges() {
+  for (int e = 0; e < ne; ++e) {
+    if (S.edge_degenerate(e)) continue;
+    auto vs = S.edge_vertices(e);
+    std::vector<double> t;
+    if (auto* d = DV.find("w" + std::to_string(e)))
+      t = d->nodes;
+    else if (auto* d2 = DV.find("e" + std::to_string(e)))
+      t = d2->nodes;
+    else
+      t = own_division(e, O.farfield_size);
+    // cuts: [t0, c0] + the divisions mapped affinely onto [c0, c1] + [c1, tn]
+    const Cut& c0 = cuts[e][0];
+    const Cut& c1 = cuts[e][1];
+    std::vector<double> nt;
+    std::vector<std::uint32_t> nn;
+    double a = c0.node != kNone ? c0.t : t.front(), b = c1.node != kNone ? c1.t : t.back();
+    if (c0.node != kNone) nt.push_back(t.front()), nn.push_back(kNone);
+    for (std::size_t k = 0; k < t.size(); ++k) {
+      double s = (t[k] - t.front()) / (t.back() - t.front());
+      nt.push_back(a + s * (b - a));
+      nn.push_back(kNone);
+    }
+    if (c0.node != kNone) nn[1] = c0.node;
+    if (c1.node != kNone) nt.push_back(t.back()), nn.push_back(kNone), nn[nn.size() - 2] = c1.node;
+    // end vertices
+    for (int end = 0; end < 2; ++end) {
+      int V = vs[end];
+      if (vnode[V] == kNone) vnode[V] = mk(v3(S.vertex_point(V)), 0, V + 1);
+    }
+    nn.front() = vnode[vs[0]];
+    nn.back() = vnode[vs[1]];
+    for (std::size_t k = 1; k + 1 < nn.size(); ++k)
+      if (nn[k] == kNone) nn[k] = mk(v3(S.edge_point(e, nt[k])), 1, e + 1, nt[k]);
+    for (std::size_t k = 1; k < nt.size(); ++k)
+      if (!(nt[k] > nt[k - 1]))
+        throw StageError("sweep: the nodes of CAD edge " + std::to_string(e) +
+                         " are out of order after the junction corner was placed on it (the junction's strip is wider than "
+                         "the edge's first division allows); reduce shell.thickness or refine the edge");
+    et[e] = std::move(nt);
+    en[e] = std::move(nn);
+  }
+}
+
+void Builder::build_junction_curves() {
+  for (auto& j : J) {
+    const auto& w = en[j.edge];
+    const auto& t = et[j.edge];
+    std::size_t n = w.size();
+    for (std::size_t k = 0; k < n; ++k) {
+      j.p0[k] = w[k];
+      if (k == 0 || k + 1 == n) continue;  // shared end cross-sections, set by junction_ends
+      auto s = j.at(t[k]);
+      auto pa = S.project_to_face(j.A, cv(s.PA), cad::Vec2{s.uvA[0], s.uvA[1]});
+      auto pb = S.project_to_face(j.B, cv(s.PB), cad::Vec2{s.uvB[0], s.uvB[1]});
+      j.pa[k] = mk(v3(pa.point), 2, j.A + 1, pa.u, pa.v);
+      uv_on[j.pa[k]] = {pa.u, pa.v};
+      j.pb[k] = mk(v3(pb.point), 2, j.B + 1, pb.u, pb.v);
+      uv_on[j.pb[k]] = {pb.u, pb.v};
+      // the outer corner: PA's shell image along A's field, as the shell defines PC
+      auto [th, d] = SH.face_field(j.A, pa.u, pa.v);
+      j.pc[k] = mk(add(v3(pa.point), mul(V3{d[0], d[1], d[2]}, th)), 3, 1);
+    }
+    for (std::size_t k = 0; k < n; ++k) {
+      image[j.pa[k]] = j.pc[k];
+      if (wall[j.B]) image[j.pb[k]] = j.pc[k];
+    }
+  }
+}
+
+// Wall|other edges that are not junctions: the shell images of their nodes lie on the other
+// face (projected onto it exactly).
+void Builder::build_slides() {
+  for (int e = 0; e < ne; ++e) {
+    if (slide_other[e] < 0) continue;
+    int B = slide_other[e], W = slide_wall[e];
+    for (std::size_t k = 0; k < en[e].size(); ++k) {
+      std::uint32_t n = en[e][k];
+      if (image.count(n)) continue;
+      std::pair<double, shell::Vec3> td;
+      bool is_vertex = (k == 0 || k + 1 == en[e].size());
+      if (is_vertex) {
+        int V = S.edge_vertices(e)[k == 0 ? 0 : 1];
+        bool found = false;
+        for (auto& vv : SH.vertices)
+          if (vv.vertex == V) td = {vv.t, vv.d}, found = true;
+        if (!found) td = SH.edge_field(e, et[e][k], W);
+      } else {
+        td = SH.edge_field(e, et[e][k], W);
+      }
+      V3 x = add(X(n), mul(V3{td.second[0], td.second[1], td.second[2]}, td.first));
+      auto pr = S.project_to_face(B, cv(x));
+      std::uint32_t img = mk(v3(pr.point), 2, B + 1, pr.u, pr.v);
+      uv_on[img] = {pr.u, pr.v};
+      image[n] = img;
+    }
+  }
+}
+
+std::uint32_t Builder::shell_image(std::uint32_t n, int face) {
+  auto it = image.find(n);
+  if (it != image.end()) return it->second;
+  int dim = m.node_entity_dim[n], tag = m.node_entity_tag[n];
+  std::pair<double, shell::Vec3> td;
+  if (dim == 0) {
+    bool found = false;
+    for (auto& vv : SH.vertices)
+      if (vv.vertex == tag - 1) td = {vv.t, vv.d}, found = true;
+    if (!found)
+      throw StageError("sweep: wall vertex " + std::to_string(tag - 1) + " has no shell value; re-run shell (needs the same shape)");
+  } else if (dim == 1) {
+    td = SH.edge_field(tag - 1, m.node_u[n], face);
+  } else {
+    td = SH.face_field(face, m.node_u[n], m.node_v[n]);
+  }
+  V3 x = add(X(n), mul(V3{td.second[0], td.second[1], td.second[2]}, td.first));
+  std::uint32_t img = mk(x, 3, 1);
+  image[n] = img;
+  return img;
+}
+
+// ── one face: boundary loops in (u,v), the 2D mesher, nodes and triangles ────────────────
+void Builder::mesh_face(int f) {
+  struct LP {
+    std::uint32_t node;
+    std::array<double, 2> uv;
+  };
+  std::vector<std::vector<LP>> loops;
+  // (u,v) on f of a node classified elsewhere: through the p-curves of f's edges (a seam's two
+  // p-curves: the one nearer the hint), projection only for nodes off f's edges
+  auto uv_of = [&](std::uint32_t n, std::array<double, 2> hint) -> std::array<double, 2> {
+    int dim = m.node_entity_dim[n], tag = m.node_entity_tag[n];
+    if (dim == 2 && tag == f + 1) return {m.node_u[n], m.node_v[n]};
+    auto pick = [&](int e, double t) -> std::optional<std::array<double, 2>> {
+      auto fs = S.edge_faces(e);
+      if (std::find(fs.begin(), fs.end(), f) == fs.end()) return std::nullopt;
+      cad::Vec2 a = S.edge_uv(e, f, t, false);
+      std::array<double, 2> r{a.u, a.v};
+      if (S.edge_is_seam(e, f) && !std::isnan(hint[0])) {
+        cad::Vec2 b = S.edge_uv(e, f, t, true);
+        if (std::hypot(b.u - hint[0], b.v - hint[1]) < std::hypot(a.u - hint[0], a.v - hint[1])) r = {b.u, b.v};
+      }
+      return r;
+    };
+    if (dim == 1)
+      if (auto r = pick(tag - 1, m.node_u[n])) return *r;
+    if (dim == 0)
+      for (int e : S.face_edges(f)) {
+        if (S.edge_degenerate(e)) continue;
+        auto vs = S.edge_vertices(e);
+        auto rr = S.edge_range(e);
+        if (vs[0] == tag - 1)
+          if (auto r = pick(e, rr.lo)) return *r;
+        if (vs[1] == tag - 1)
+          if (auto r = pick(e, rr.hi)) return *r;
+      }
+    auto pr = std::isnan(hint[0]) ? S.project_to_face(f, cv(X(n))) : S.project_to_face(f, cv(X(n)), cad::Vec2{hint[0], hint[1]});
+    return {pr.u, pr.v};
+  };
+  for (auto& wire : S.face_wires(f)) {
+    std::vector<LP> raw;
+    for (auto& eu : wire) {
+      int e = eu.edge;
+      if (S.edge_degenerate(e)) {
+        auto r = S.edge_range(e);
+        int V = S.edge_vertices(e)[0];
+        cad::Vec2 q = S.edge_uv(e, f, eu.reversed ? r.hi : r.lo, eu.reversed);
+        if (vnode[V] == kNone) vnode[V] = mk(v3(S.vertex_point(V)), 0, V + 1);
+        raw.push_back({vnode[V], {q.u, q.v}});
+        continue;
+      }
+      int jb = junction_of[e];
+      std::vector<std::uint32_t> sub;  // substituted curve (both ends included), in the edge's direction
+      if (jb >= 0 && J[jb].A == f) sub = J[jb].pa;
+      if (jb >= 0 && J[jb].B == f) sub = J[jb].pb;
+      if (jb < 0 && slide_other[e] == f) {
+        for (auto n : en[e]) sub.push_back(image.at(n));
+      }
+      if (!sub.empty()) {
+        if (eu.reversed) std::reverse(sub.begin(), sub.end());
+        std::array<double, 2> hint{NAN, NAN};
+        for (auto n : sub) {
+          if (!raw.empty() && std::isnan(hint[0])) hint = raw.back().uv;
+          auto q = uv_of(n, hint);
+          raw.push_back({n, q});
+          hint = q;
+        }
+        continue;
+      }
+      const auto& t = et[e];
+      const auto& nn = en[e];
+      std::size_t n = t.size();
+      for (std::size_t s = 0; s + 1 < n; ++s) {
+        std::size_t k = eu.reversed ? n - 1 - s : s;
+        cad::Vec2 q = S.edge_uv(e, f, t[k], eu.reversed);
+        raw.push_back({nn[k], {q.u, q.v}});
+      }
+    }
+    // clean-up: consecutive duplicates and X,V,X detours (a junction vertex between a strip
+    // curve and the cut edge that continues from the strip's corner)
+    bool changed = true;
+    while (changed && raw.size() > 2) {
+      changed = false;
+      for (std::size_t i = 0; i < raw.size() && raw.size() > 2; ++i) {
+        std::size_t j = (i + 1) % raw.size();
+        if (raw[i].node == raw[j].node && std::abs(raw[i].uv[0] - raw[j].uv[0]) + std::abs(raw[i].uv[1] - raw[j].uv[1]) < 1e-9 * (1 + std::abs(raw[i].uv[0]) + std::abs(raw[i].uv[1]))) {
+          raw.erase(raw.begin() + static_cast<long>(j));
+          changed = true;
+          break;
+        }
+        std::size_t k = (i + 2) % raw.size();
+        if (raw[i].node == raw[k].node && i != k) {
+          // drop the detour i -> j -> k == i
+          std::size_t first = std::max(j, k), second = std::min(j, k);
+          raw.erase(raw.begin() + static_cast<long>(first));
+          raw.erase(raw.begin() + static_cast<long>(second));
+          changed = true;
+          break;
+        }
+      }
+    }
+    if (raw.size() >= 3) loops.push_back(std::move(raw));
+  }
+  if (loops.empty()) return;
+  // Separable arc-length reparameterisation (u,v) -> (U(u), V(v)), U' = mean over v of |S_u|:
+  // Delaunay in (U,V) is close to Delaunay on the surface for the usual lofted and revolved
+  // faces (e.g. a wing whose chordwise parameter is cosine-spaced, where |S_u| -> 0 at the
+  // leading edge and triangles that are good in 3D are needles in (u,v)).
+  auto bnd = S.face_uv_bounds(f);
+  struct Map1 {
+    std::vector<double> a, A;  // parameter stations and their arc-length images
+    double fwd(double x) const {
+      if (x <= a.front()) return A.front() + (x - a.front()) * (A[1] - A[0]) / (a[1] - a[0]);
+      if (x >= a.back()) return A.back() + (x - a.back()) * (A.back() - A[A.size() - 2]) / (a.back() - a[a.size() - 2]);
+      std::size_t i = std::upper_bound(a.begin(), a.end(), x) - a.begin();
+      return A[i - 1] + (x - a[i - 1]) * (A[i] - A[i - 1]) / (a[i] - a[i - 1]);
+    }
+    double inv(double X) const {
+      if (X <= A.front()) return a.front() + (X - A.front()) * (a[1] - a[0]) / (A[1] - A[0]);
+      if (X >= A.back()) return a.back() + (X - A.back()) * (a.back() - a[a.size() - 2]) / (A.back() - A[A.size() - 2]);
+      std::size_t i = std::upper_bound(A.begin(), A.end(), X) - A.begin();
+      return a[i - 1] + (X - A[i - 1]) * (a[i] - a[i - 1]) / (A[i] - A[i - 1]);
+    }
+  };
+  const int NS = 64;
+  Map1 MU, MV;
+  {
+    std::vector<double> du(NS + 1, 0.0), dv(NS + 1, 0.0);
+    for (int i = 0; i <= NS; ++i)
+      for (int j = 0; j <= NS; ++j) {
+        double u = bnd.u0 + (bnd.u1 - bnd.u0) * i / NS, v = bnd.v0 + (bnd.v1 - bnd.v0) * j / NS;
+        auto d = S.face_eval(f, u, v);
+        du[i] += norm(v3(d.du)) / (NS + 1);
+        auto d2 = S.face_eval(f, bnd.u0 + (bnd.u1 - bnd.u0) * j / NS, bnd.v0 + (bnd.v1 - bnd.v0) * i / NS);
+        dv[i] += norm(v3(d2.dv)) / (NS + 1);
+      }
+    double mu = 0, mv = 0;
+    for (int i = 0; i <= NS; ++i) mu += du[i] / (NS + 1), mv += dv[i] / (NS + 1);
+    if (!(mu > 0)) mu = 1;
+    if (!(mv > 0)) mv = 1;
+    MU.a.resize(NS + 1), MU.A.resize(NS + 1), MV.a.resize(NS + 1), MV.A.resize(NS + 1);
+    for (int i = 0; i <= NS; ++i) {
+      MU.a[i] = bnd.u0 + (bnd.u1 - bnd.u0) * i / NS;
+      MV.a[i] = bnd.v0 + (bnd.v1 - bnd.v0) * i / NS;
+      du[i] = std::max(du[i], 0.02 * mu), dv[i] = std::max(dv[i], 0.02 * mv);  // stays strictly monotone
+    }
+    MU.A[0] = MV.A[0] = 0;
+    for (int i = 1; i <= NS; ++i) {
+      MU.A[i] = MU.A[i - 1] + 0.5 * (du[i - 1] + du[i]) * (MU.a[i] - MU.a[i - 1]);
+      MV.A[i] = MV.A[i - 1] + 0.5 * (dv[i - 1] + dv[i]) * (MV.a[i] - MV.a[i - 1]);
+    }
+    if (!(bnd.u1 > bnd.u0)) MU.a = {0, 1}, MU.A = {0, 1};
+    if (!(bnd.v1 > bnd.v0)) MV.a = {0, 1}, MV.A = {0, 1};
+  }
+  detail::UVMeshInput in;
+  std::vector<std::uint32_t> bnode;
+  std::vector<V3> bx;
+  std::vector<double> bh;
+  for (auto& l : loops) {
+    int first = static_cast<int>(in.uv.size());
+    for (std::size_t i = 0; i < l.size(); ++i) {
+      in.uv.push_back({MU.fwd(l[i].uv[0]), MV.fwd(l[i].uv[1])});
+      bnode.push_back(l[i].node);
+      bx.push_back(X(l[i].node));
+      in.segments.push_back({first + static_cast<int>(i), first + static_cast<int>((i + 1) % l.size())});
+    }
+    for (std::size_t i = 0; i < l.size(); ++i) {
+      V3 a = X(l[(i + l.size() - 1) % l.size()].node), b = X(l[i].node), c = X(l[(i + 1) % l.size()].node);
+      bh.push_back(0.5 * (norm(sub(b, a)) + norm(sub(c, b))));
+    }
+  }
+  const bool is_wall = wall[f] != 0;
+  const double hmax = is_wall ? O.max_size : O.farfield_size;
+  const double theta = O.turn_angle_deg * M_PI / 180;
+  in.point = [&](double u, double v) { return v3(S.face_point(f, MU.inv(u), MV.inv(v))); };
+  in.size = [&](double u, double v) {
+    double uu = MU.inv(u), vv = MV.inv(v);
+    V3 x = v3(S.face_point(f, uu, vv));
+    double h = hmax;  // curvature: the turn-angle rule on the vertex normals (in.normal below)
+    (void)vv;
+    // the interior is not made finer than its boundary (the edges carry the sizing the integer
+    // program balanced): the curvature size is raised to the boundary spacing interpolated by
+    // inverse squared distance, then graded from the boundary nodes
+    double wsum = 0, hidw = 0, hgrad = INFINITY;
+    for (std::size_t i = 0; i < bx.size(); ++i) {
+      double d = norm(sub(x, bx[i]));
+      double w = 1 / (d * d + 1e-30);
+      wsum += w, hidw += w * bh[i];
+      hgrad = std::min(hgrad, bh[i] + O.grading * d);
+    }
+    if (wsum > 0) h = std::max(h, hidw / wsum);
+    h = std::min({h, hgrad, hmax});
+    return std::max(h, O.min_size);
+  };
+  if (std::getenv("MESHFLOW_SWEEP_DEBUG")) {
+    std::ostringstream o;
+    o << "face " << f << ": loops";
+    for (auto& l : loops) o << " " << l.size();
+    o << " bounds " << bnd.u0 << " " << bnd.u1 << " " << bnd.v0 << " " << bnd.v1;
+    for (auto& l : loops) for (auto& p : l) o << " [" << p.uv[0] << "," << p.uv[1] << "]";
+    log(o.str());
+  }
+  in.normal = [&](double u, double v) { return v3(S.face_normal(f, MU.inv(u), MV.inv(v))); };
+  in.max_turn = theta;
+  in.min_length = O.min_size;
+  in.refine_ratio = O.refine_ratio;
+  in.smooth_passes = O.smooth_passes;
+  detail::UVMeshOutput out;
+  try {
+    out = detail::mesh_uv(in);
+  } catch (const std::exception& ex) {
+    throw StageError("sweep: face " + std::to_string(f) + " (" + cad::tag_name(S.face_tag(f)) + ", " +
+                     S.face_surface_type(f) + ") cannot be triangulated in its parameter plane: " + ex.what());
+  }
+  if (std::getenv("MESHFLOW_SWEEP_DEBUG"))
+    log("face " + std::to_string(f) + ": " + std::to_string(out.uv.size()) + " points, " + std::to_string(out.tris.size()) +
+        " triangles, " + std::to_string(out.passes) + " passes, min quality " + std::to_string(out.min_quality));
+  std::vector<std::uint32_t> node(out.uv.size(), kNone);
+  for (std::size_t i = 0; i < bnode.size(); ++i) node[i] = bnode[i];
+  for (std::size_t i = bnode.size(); i < out.uv.size(); ++i) {
+    double u = MU.inv(out.uv[i][0]), v = MV.inv(out.uv[i][1]);
+    node[i] = mk(v3(S.face_point(f, u, v)), 2, f + 1, u, v);
+  }
+  for (auto& t : out.tris) {
+    std::array<std::uint32_t, 3> g{node[t[0]], node[t[1]], node[t[2]]};
+    if (g[0] == g[1] || g[1] == g[2] || g[0] == g[2]) continue;  // collapsed at a pole
+    // orient out of the fluid (the face normal points out of the fluid solid)
+    V3 a = X(g[0]), b = X(g[1]), c = X(g[2]);
+    V3 nrm = cross(sub(b, a), sub(c, a));
+    double cu = MU.inv((out.uv[t[0]][0] + out.uv[t[1]][0] + out.uv[t[2]][0]) / 3);
+    double cvv = MV.inv((out.uv[t[0]][1] + out.uv[t[1]][1] + out.uv[t[2]][1]) / 3);
+    V3 fn = v3(S.face_normal(f, cu, cvv));
+    if (dot(nrm, fn) < 0) std::swap(g[1], g[2]);
+    face_tris[f].push_back(g);
+  }
+  ++R.faces_meshed;
+}
+
+// Layer directions are smoothed where a prism is inverted (typically at convex corners where
+// three walls meet and the shell's direction field turns faster than the triangles are
+// wide): the direction of each wall node of an inverted prism and of its neighbours becomes
+// the normalised mean of its own and its neighbours' directions, the layer height their mean
+// (Jacobi passes, until every prism is valid or 40 passes). Images fixed by the block structure
+// (junction corners, images sliding on other faces) do not move.
+void Builder::untangle(std::vector<std::vector<std::uint32_t>>& P) {
+  auto valid = [&](const std::vector<std::uint32_t>& p) {
+    double X3[18];
+    for (int i = 0; i < 6; ++i) X3[3 * i] = m.x[p[i]], X3[3 * i + 1] = m.y[p[i]], X3[3 * i + 2] = m.z[p[i]];
+    return model::element_quality(model::Shape::Prism, 1, X3).valid;
+  };
+  std::map<std::uint32_t, std::set<std::uint32_t>> nb;
+  std::map<std::uint32_t, std::uint32_t> img;
+  for (auto& p : P)
+    for (int i = 0; i < 3; ++i) {
+      img[p[i]] = p[i + 3];
+      for (int j = 0; j < 3; ++j)
+        if (j != i) nb[p[i]].insert(p[j]);
+    }
+  std::set<std::uint32_t> fixed_img;
+  for (auto& j : J)
+    for (auto n : j.pc) fixed_img.insert(n);
+  auto movable = [&](std::uint32_t w) {
+    std::uint32_t i = img.at(w);
+    return !fixed_img.count(i) && m.node_entity_dim[i] == 3;
+  };
+  for (int pass = 0; pass < 60; ++pass) {
+    std::set<std::uint32_t> bad;
+    for (auto& p : P)
+      if (!valid(p)) {
+        std::vector<std::uint32_t> q{p[0], p[2], p[1], p[3], p[5], p[4]};
+        if (valid(q)) continue;  // the other orientation is valid: flipped later
+        for (int i = 0; i < 3; ++i) bad.insert(p[i]);
+      }
+    if (bad.empty()) {
+      if (pass > 0)
+        log("sweep: layer directions smoothed in " + std::to_string(pass) + " passes to untangle prisms" +
+            (R.thinned ? ", layer thinned at " + std::to_string(R.thinned) + " node moves" : std::string()));
+      return;
+    }
+    std::set<std::uint32_t> move;
+    for (auto w : bad) {
+      if (movable(w)) move.insert(w);
+      for (auto n : nb[w])
+        if (movable(n)) move.insert(n);
+    }
+    std::vector<std::pair<std::uint32_t, V3>> upd;
+    for (auto w : move) {
+      V3 d{0, 0, 0};
+      double t = 0;
+      int k = 0;
+      auto acc = [&](std::uint32_t n) {
+        V3 l = sub(X(img.at(n)), X(n));
+        double len = norm(l);
+        if (len > 0) d = add(d, mul(l, 1 / len)), t += len, ++k;
+      };
+      acc(w);
+      for (auto n : nb[w]) acc(n);
+      if (k == 0 || norm(d) == 0) continue;
+      double len = t / k;
+      // after 20 passes of direction smoothing, the layer is also thinned where it stays tangled
+      if (pass >= 20 && bad.count(w)) len = std::min(len, 0.8 * norm(sub(X(img.at(w)), X(w)))), ++R.thinned;
+      upd.push_back({img.at(w), add(X(w), mul(d, len / norm(d)))});
+    }
+    for (auto& [i, x] : upd) m.x[i] = x[0], m.y[i] = x[1], m.z[i] = x[2];
+  }
+}
+
+void Builder::volume() {
+  auto valid_or_flip = [&](model::Shape shape, std::vector<std::uint32_t>& nodes, const std::vector<int>& flip,
+                           const std::string& what) {
+    auto check = [&](const std::vector<std::uint32_t>& nd) {
+      std::vector<double> X3;
+      for (auto n : nd) X3.push_back(m.x[n]), X3.push_back(m.y[n]), X3.push_back(m.z[n]);
+      return model::element_quality(shape, 1, X3.data()).valid;
+    };
+    if (check(nodes)) return true;
+    std::vector<std::uint32_t> g(nodes.size());
+    for (std::size_t i = 0; i < nodes.size(); ++i) g[i] = nodes[flip[i]];
+    if (check(g)) {
+      nodes = g;
+      return true;
+    }
+    V3 c{0, 0, 0};
+    for (auto n : nodes) c = add(c, X(n));
+    if (std::getenv("MESHFLOW_SWEEP_DEBUG"))
+      for (auto n : nodes)
+        log("  node " + std::to_string(n) + " " + fmt(X(n)) + " on (" + std::to_string(m.node_entity_dim[n]) + "," +
+            std::to_string(m.node_entity_tag[n]) + ") u " + std::to_string(m.node_u[n]) + " v " + std::to_string(m.node_v[n]));
+    throw StageError("sweep: the " + what + " at " + fmt(mul(c, 1.0 / nodes.size())) +
+                     " is inverted (the shell is too close to the wall or folds there); reduce shell.thickness or "
+                     "shell.max_gradient, or refine the walls (balance.max_size)");
+  };
+  // prisms: the wall triangle (pointing out of the fluid) reversed, then its shell image
+  std::vector<std::vector<std::uint32_t>> P;
+  std::vector<int> pface;
+  for (int f = 0; f < nf; ++f) {
+    if (!wall[f]) continue;
+    for (auto& t : face_tris[f]) {
+      P.push_back({t[0], t[2], t[1], shell_image(t[0], f), shell_image(t[2], f), shell_image(t[1], f)});
+      pface.push_back(f);
+    }
+  }
+  untangle(P);
+  auto& prisms = m.block(model::Shape::Prism, 1, 3, 1);
+  for (std::size_t i = 0; i < P.size(); ++i) {
+    valid_or_flip(model::Shape::Prism, P[i], {0, 2, 1, 3, 5, 4}, "prism on wall face " + std::to_string(pface[i]));
+    prisms.add(P[i].data());
+    ++R.prisms;
+  }
+  if (prisms.size() == 0) m.blocks.pop_back();
+  bool any_hex = false;
+  for (auto& j : J) {
+    std::size_t n = j.p0.size();
+    for (std::size_t k = 0; k + 1 < n; ++k) {
+      std::vector<std::uint32_t> h{j.p0[k], j.p0[k + 1], j.pa[k + 1], j.pa[k], j.pb[k], j.pb[k + 1], j.pc[k + 1], j.pc[k]};
+      valid_or_flip(model::Shape::Hex, h, {0, 3, 2, 1, 4, 7, 6, 5}, "junction hex of edge " + std::to_string(j.edge));
+      m.block(model::Shape::Hex, 1, 3, 1).add(h.data());
+      any_hex = true;
+      ++R.hexes;
+      face_quads[j.A].push_back({j.p0[k], j.p0[k + 1], j.pa[k + 1], j.pa[k]});
+      face_quads[j.B].push_back({j.p0[k], j.p0[k + 1], j.pb[k + 1], j.pb[k]});
+      R.strip_quads += 2;
+    }
+  }
+  (void)any_hex;
+  for (int e = 0; e < ne; ++e) {
+    if (slide_other[e] < 0) continue;
+    for (std::size_t k = 0; k + 1 < en[e].size(); ++k) {
+      std::uint32_t a = en[e][k], b = en[e][k + 1];
+      face_quads[slide_other[e]].push_back({a, b, image.at(b), image.at(a)});
+      ++R.slide_quads;
+    }
+  }
+}
+
+model::Mesh Builder::run() {
+  auto t0 = std::chrono::steady_clock::now();
+  nf = S.num_faces(), ne = S.num_edges(), nv = S.num_vertices();
+  wall.assign(nf, 0);
+  for (int f : S.faces_with_tag(cad::Tag::wall)) wall[f] = 1;
+  vnode.assign(nv, kNone);
+  et.assign(ne, {});
+  en.assign(ne, {});
+  cuts.assign(ne, {});
+  junction_of.assign(ne, -1);
+  slide_other.assign(ne, -1);
+  slide_wall.assign(ne, -1);
+  face_tris.assign(nf, {});
+  face_quads.assign(nf, {});
+
+  nlohmann::json H = nlohmann::json::parse(SH.header);
+  for (auto& b : H.at("blocks")) {
+    if (b.at("kind") != "hex_junction") continue;
+    Junction j;
+    j.edge = b.at("edge"), j.A = b.at("face"), j.B = b.at("partner");
+    j.vertices = {b.at("vertices").at(0).get<int>(), b.at("vertices").at(1).get<int>()};
+    for (auto& s : b.at("stations"))
+      j.st.push_back({s.at("t").get<double>(), jv3(s.at("P0")), jv3(s.at("PA")), jv3(s.at("PB")), jv3(s.at("PC")),
+                      {s.at("uvA").at(0).get<double>(), s.at("uvA").at(1).get<double>()},
+                      {s.at("uvB").at(0).get<double>(), s.at("uvB").at(1).get<double>()}});
+    if (j.st.empty()) throw StageError("sweep: junction block of edge " + std::to_string(j.edge) + " has no stations; re-run shell");
+    junction_of[j.edge] = static_cast<int>(J.size());
+    J.push_back(std::move(j));
+  }
+  R.junction_blocks = J.size();
+  for (int e = 0; e < ne; ++e) {
+    if (S.edge_degenerate(e) || junction_of[e] >= 0) continue;
+    auto fs = S.edge_faces(e);
+    int w = -1, o = -1, nw = 0;
+    for (int f : fs) {
+      if (wall[f]) ++nw, w = f;
+      else o = f;
+    }
+    if (nw == 1 && o >= 0 && fs.size() == 2) slide_other[e] = o, slide_wall[e] = w;
+  }
+  log("sweep: " + std::to_string(J.size()) + " junction blocks");
+  // junction node arrays sized from the wall divisions
+  for (auto& j : J) {
+    auto* d = DV.find("w" + std::to_string(j.edge));
+    if (!d) throw StageError("sweep: the divisions have no entry w" + std::to_string(j.edge) + " for the junction edge; re-run balance");
+    std::size_t n = d->nodes.size();
+    j.p0.assign(n, kNone), j.pa.assign(n, kNone), j.pb.assign(n, kNone), j.pc.assign(n, kNone);
+  }
+  junction_ends();
+  build_edges();
+  build_junction_curves();
+  build_slides();
+  auto ts = std::chrono::steady_clock::now();
+  for (int f = 0; f < nf; ++f) mesh_face(f);
+  R.surface_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - ts).count();
+  volume();
+  // boundary elements, lines, entities, physical groups
+  std::set<int> phys_used;
+  for (int f = 0; f < nf; ++f) {
+    int p = tag_physical(S.face_tag(f));
+    if (p) phys_used.insert(p);
+    m.add_entity(2, f + 1, p ? std::vector<int>{p} : std::vector<int>{});
+    if (!face_tris[f].empty()) {
+      auto& b = m.block(model::Shape::Tri, 1, 2, f + 1);
+      for (auto& t : face_tris[f]) b.add({t[0], t[1], t[2]});
+      (wall[f] ? R.wall_triangles : R.boundary_triangles) += face_tris[f].size();
+    }
+    if (!face_quads[f].empty()) {
+      auto& b = m.block(model::Shape::Quad, 1, 2, f + 1);
+      for (auto& q : face_quads[f]) b.add({q[0], q[1], q[2], q[3]});
+    }
+  }
+  for (int e = 0; e < ne; ++e) {
+    if (en[e].size() < 2) continue;
+    m.add_entity(1, e + 1);
+    auto& b = m.block(model::Shape::Line, 1, 1, e + 1);
+    for (std::size_t k = 0; k + 1 < en[e].size(); ++k) b.add({en[e][k], en[e][k + 1]});
+  }
+  for (int V = 0; V < nv; ++V)
+    if (vnode[V] != kNone) m.add_entity(0, V + 1);
+  m.add_entity(3, 1, {fluid});
+  static const char* names[] = {"", "wall", "farfield", "symmetry", "periodic_lo", "periodic_hi"};
+  for (int p : phys_used) m.add_physical(2, p, names[p]);
+  m.add_physical(3, fluid, "fluid");
+  // blocks in a canonical order: volume first, then faces, then lines (by entity)
+  std::stable_sort(m.blocks.begin(), m.blocks.end(), [](const model::ElementBlock& a, const model::ElementBlock& b) {
+    if (a.entity_dim != b.entity_dim) return a.entity_dim > b.entity_dim;
+    if (a.entity_tag != b.entity_tag) return a.entity_tag < b.entity_tag;
+    return static_cast<int>(a.shape) < static_cast<int>(b.shape);
+  });
+  R.nodes = m.num_nodes();
+  R.total_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return std::move(m);
+}
+
+}  // namespace
+
+nlohmann::json Report::to_json() const {
+  return {{"wall_triangles", wall_triangles}, {"strip_quads", strip_quads},   {"slide_quads", slide_quads},
+          {"boundary_triangles", boundary_triangles}, {"prisms", prisms},     {"hexes", hexes},
+          {"junction_blocks", junction_blocks},     {"edges_cut", edges_cut}, {"thinned", thinned}, {"nodes", nodes},
+          {"faces_meshed", faces_meshed},           {"surface_seconds", surface_seconds},
+          {"total_seconds", total_seconds}};
+}
+
+model::Mesh sweep_mesh(const cad::Shape& shape, const shell::ShellData& shell, const balance::Divisions& div,
+                       const Options& opt, Report& report, const std::function<void(const std::string&)>& log) {
+  Builder b(shape, shell, div, opt, report, log);
+  return b.run();
+}
+
+}  // namespace meshflow::sweep

@@ -1,0 +1,315 @@
+// The parameter-domain mesher of sweep (see uv_mesher.hpp). CGAL only; no OCCT.
+#include "stages/sweep/uv_mesher.hpp"
+
+#include <CGAL/Constrained_Delaunay_triangulation_2.h>
+#include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
+#include <CGAL/Triangulation_face_base_with_info_2.h>
+#include <CGAL/Triangulation_vertex_base_with_info_2.h>
+
+#include <algorithm>
+#include <cmath>
+#include <list>
+#include <map>
+#include <stdexcept>
+#include <string>
+
+namespace meshflow::sweep::detail {
+namespace {
+
+using K = CGAL::Exact_predicates_inexact_constructions_kernel;
+struct FaceInfo {
+  int nesting = -1;
+  bool touched = false;
+  bool in_domain() const { return nesting % 2 == 1; }
+};
+using Vb = CGAL::Triangulation_vertex_base_with_info_2<int, K>;
+using Fbi = CGAL::Triangulation_face_base_with_info_2<FaceInfo, K>;
+using Fb = CGAL::Constrained_triangulation_face_base_2<K, Fbi>;
+using Tds = CGAL::Triangulation_data_structure_2<Vb, Fb>;
+using CDT = CGAL::Constrained_Delaunay_triangulation_2<K, Tds, CGAL::Exact_predicates_tag>;
+using Point = K::Point_2;
+
+// Nesting level of every face (CGAL's polygon-with-holes example): odd levels are inside.
+void mark_domains(CDT& cdt) {
+  for (auto f = cdt.all_faces_begin(); f != cdt.all_faces_end(); ++f) f->info().nesting = -1;
+  std::list<CDT::Edge> border;
+  auto flood = [&](CDT::Face_handle start, int index) {
+    if (start->info().nesting != -1) return;
+    std::list<CDT::Face_handle> queue{start};
+    while (!queue.empty()) {
+      auto fh = queue.front();
+      queue.pop_front();
+      if (fh->info().nesting != -1) continue;
+      fh->info().nesting = index;
+      for (int i = 0; i < 3; ++i) {
+        CDT::Edge e(fh, i);
+        auto n = fh->neighbor(i);
+        if (n->info().nesting == -1) {
+          if (cdt.is_constrained(e))
+            border.push_back(e);
+          else
+            queue.push_back(n);
+        }
+      }
+    }
+  };
+  flood(cdt.infinite_face(), 0);
+  while (!border.empty()) {
+    auto e = border.front();
+    border.pop_front();
+    auto n = e.first->neighbor(e.second);
+    if (n->info().nesting == -1) flood(n, e.first->info().nesting + 1);
+  }
+}
+
+double dist3(const std::array<double, 3>& a, const std::array<double, 3>& b) {
+  return std::sqrt((a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) + (a[2] - b[2]) * (a[2] - b[2]));
+}
+
+double seg_dist(const Point& p, const Point& a, const Point& b) {
+  double dx = b.x() - a.x(), dy = b.y() - a.y();
+  double l2 = dx * dx + dy * dy;
+  double t = l2 > 0 ? std::clamp(((p.x() - a.x()) * dx + (p.y() - a.y()) * dy) / l2, 0.0, 1.0) : 0.0;
+  double qx = a.x() + t * dx - p.x(), qy = a.y() + t * dy - p.y();
+  return std::sqrt(qx * qx + qy * qy);
+}
+
+double tri_quality(const std::array<double, 3>& a, const std::array<double, 3>& b, const std::array<double, 3>& c) {
+  double e1[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, e2[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+  double cx = e1[1] * e2[2] - e1[2] * e2[1], cy = e1[2] * e2[0] - e1[0] * e2[2], cz = e1[0] * e2[1] - e1[1] * e2[0];
+  double area = 0.5 * std::sqrt(cx * cx + cy * cy + cz * cz);
+  double l = dist3(a, b) * dist3(a, b) + dist3(b, c) * dist3(b, c) + dist3(c, a) * dist3(c, a);
+  return l > 0 ? 4 * std::sqrt(3.0) * area / l : 0.0;
+}
+
+double orient(const std::array<double, 2>& a, const std::array<double, 2>& b, const std::array<double, 2>& c) {
+  return (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
+}
+
+}  // namespace
+
+UVMeshOutput mesh_uv(const UVMeshInput& in) {
+  UVMeshOutput out;
+  out.uv = in.uv;
+  std::vector<std::array<double, 3>> p3;
+  p3.reserve(in.uv.size());
+  std::vector<std::array<double, 3>> n3;
+  for (auto& q : in.uv) p3.push_back(in.point(q[0], q[1]));
+  if (in.normal)
+    for (auto& q : in.uv) n3.push_back(in.normal(q[0], q[1]));
+  auto turn = [&](int a, int b) {
+    const auto &x = n3[a], &y = n3[b];
+    double nx = std::sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]), ny = std::sqrt(y[0] * y[0] + y[1] * y[1] + y[2] * y[2]);
+    if (!(nx > 0) || !(ny > 0)) return 0.0;  // undefined at a pole
+    return std::acos(std::clamp((x[0] * y[0] + x[1] * y[1] + x[2] * y[2]) / (nx * ny), -1.0, 1.0));
+  };
+
+  CDT cdt;
+  std::vector<CDT::Vertex_handle> vh(in.uv.size());
+  for (std::size_t i = 0; i < in.uv.size(); ++i) {
+    vh[i] = cdt.insert(Point(in.uv[i][0], in.uv[i][1]));
+    vh[i]->info() = -1;
+  }
+  for (std::size_t i = 0; i < in.uv.size(); ++i)
+    if (vh[i]->info() < 0) vh[i]->info() = static_cast<int>(i);
+  try {
+    for (auto& s : in.segments)
+      if (vh[s[0]] != vh[s[1]]) cdt.insert_constraint(vh[s[0]], vh[s[1]]);
+  } catch (const std::exception& e) {
+    throw std::runtime_error(std::string("the boundary loops cross in the parameter plane (") + e.what() + ")");
+  }
+  if (static_cast<std::size_t>(cdt.number_of_vertices()) != in.uv.size())
+    throw std::runtime_error("the boundary has coincident or crossing points in the parameter plane (" +
+                             std::to_string(in.uv.size() - cdt.number_of_vertices()) + " merged)");
+
+  // ── refinement ──
+  for (int pass = 0; pass < in.max_passes; ++pass) {
+    mark_domains(cdt);
+    for (auto f = cdt.all_faces_begin(); f != cdt.all_faces_end(); ++f) f->info().touched = false;
+    struct Cand {
+      double score;
+      Point p;
+      CDT::Face_handle f;
+    };
+    std::vector<Cand> cand;
+    for (auto f = cdt.finite_faces_begin(); f != cdt.finite_faces_end(); ++f) {
+      if (!f->info().in_domain()) continue;
+      int a = f->vertex(0)->info(), b = f->vertex(1)->info(), c = f->vertex(2)->info();
+      double L = std::max({dist3(p3[a], p3[b]), dist3(p3[b], p3[c]), dist3(p3[c], p3[a])});
+      Point g = CGAL::centroid(f->vertex(0)->point(), f->vertex(1)->point(), f->vertex(2)->point());
+      double h = in.size(g.x(), g.y());
+      double q = tri_quality(p3[a], p3[b], p3[c]);
+      bool big = L > in.refine_ratio * h;
+      // the turn-angle rule away from the boundary only: a boundary segment cannot be split, so
+      // a triangle on a coarse boundary edge over a curved region would be refined for ever
+      if (!big && in.normal && L > in.min_length && !cdt.is_constrained(CDT::Edge(f, 0)) &&
+          !cdt.is_constrained(CDT::Edge(f, 1)) && !cdt.is_constrained(CDT::Edge(f, 2)) &&
+          std::max({turn(a, b), turn(b, c), turn(c, a)}) > in.max_turn)
+        big = true;
+      bool skinny = !big && q < in.min_quality && L > 0.5 * h;
+      if (!big && !skinny) continue;
+      // the circumcentre when it is inside the domain and clear of the constraints, else the centroid
+      Point cc = CGAL::circumcenter(f->vertex(0)->point(), f->vertex(1)->point(), f->vertex(2)->point());
+      Point p = g;
+      auto lf = cdt.locate(cc, f);
+      if (!cdt.is_infinite(lf) && lf->info().in_domain()) {
+        bool clear = true;
+        for (int i = 0; i < 3 && clear; ++i) {
+          if (!cdt.is_constrained(CDT::Edge(lf, i))) continue;
+          const Point& s0 = lf->vertex(cdt.cw(i))->point();
+          const Point& s1 = lf->vertex(cdt.ccw(i))->point();
+          double len = std::sqrt(CGAL::squared_distance(s0, s1));
+          if (seg_dist(cc, s0, s1) < 0.5 * len) clear = false;
+        }
+        if (clear) p = cc;
+        else if (skinny || q < 0.1) continue;  // a needle at the boundary (a thin face): a centroid would make it worse
+      } else if (skinny || q < 0.1) {
+        continue;
+      }
+      {
+        double lmin = std::min({std::sqrt(CGAL::squared_distance(f->vertex(0)->point(), f->vertex(1)->point())),
+                                std::sqrt(CGAL::squared_distance(f->vertex(1)->point(), f->vertex(2)->point())),
+                                std::sqrt(CGAL::squared_distance(f->vertex(2)->point(), f->vertex(0)->point()))});
+        bool near = false;
+        for (int i = 0; i < 3; ++i) near |= std::sqrt(CGAL::squared_distance(p, f->vertex(i)->point())) < 1e-3 * lmin;
+        if (near) continue;
+      }
+      cand.push_back({big ? L / h : 1 - q, p, f});
+    }
+    if (cand.empty()) break;
+    std::stable_sort(cand.begin(), cand.end(), [](const Cand& x, const Cand& y) { return x.score > y.score; });
+    std::vector<Point> accept;
+    for (auto& c : cand) {
+      if (c.f->info().touched) continue;
+      c.f->info().touched = true;
+      for (int i = 0; i < 3; ++i) c.f->neighbor(i)->info().touched = true;
+      accept.push_back(c.p);
+    }
+    for (auto& p : accept) {
+      auto before = cdt.number_of_vertices();
+      auto v = cdt.insert(p);
+      if (cdt.number_of_vertices() == before) continue;  // an existing point
+      v->info() = static_cast<int>(out.uv.size());
+      out.uv.push_back({p.x(), p.y()});
+      p3.push_back(in.point(p.x(), p.y()));
+      if (in.normal) n3.push_back(in.normal(p.x(), p.y()));
+    }
+    out.passes = pass + 1;
+    if (out.uv.size() > in.max_points)
+      throw std::runtime_error("more than " + std::to_string(in.max_points) +
+                               " points in one face: the sizes are too small for this face (raise min_size)");
+  }
+  mark_domains(cdt);
+  for (auto f = cdt.finite_faces_begin(); f != cdt.finite_faces_end(); ++f)
+    if (f->info().in_domain()) out.tris.push_back({f->vertex(0)->info(), f->vertex(1)->info(), f->vertex(2)->info()});
+  std::sort(out.tris.begin(), out.tris.end());
+
+  // ── smoothing of the new points: Laplacian in (u, v), a move kept only when every incident
+  //    triangle stays counter-clockwise ──
+  const int nb = static_cast<int>(in.uv.size());
+  const int np = static_cast<int>(out.uv.size());
+  std::vector<std::vector<int>> vt(np), nbr(np);
+  for (int t = 0; t < static_cast<int>(out.tris.size()); ++t)
+    for (int k = 0; k < 3; ++k) {
+      int a = out.tris[t][k];
+      vt[a].push_back(t);
+      for (int j = 1; j < 3; ++j) nbr[a].push_back(out.tris[t][(k + j) % 3]);
+    }
+  for (auto& n : nbr) {
+    std::sort(n.begin(), n.end());
+    n.erase(std::unique(n.begin(), n.end()), n.end());
+  }
+  // 3D shape quality of a triangle: 4 sqrt(3) area / sum of squared edges (1 equilateral)
+  p3.resize(np);
+  auto q3 = [&](int t) {
+    auto& tr = out.tris[t];
+    return tri_quality(p3[tr[0]], p3[tr[1]], p3[tr[2]]);
+  };
+    // 3D edge swaps: an edge shared by two triangles is flipped when the flip is valid in (u,v)
+  // and raises the worse 3D quality of the pair (Delaunay in the parameter plane is not
+  // Delaunay on the surface where the parameterisation is anisotropic, e.g. a revolved tip
+  // near its small end)
+  auto swaps = [&]() {
+    int total = 0;
+    for (int pass = 0; pass < 20; ++pass) {
+      std::map<std::pair<int, int>, std::vector<int>> et;
+      for (int t = 0; t < static_cast<int>(out.tris.size()); ++t)
+        for (int k = 0; k < 3; ++k) {
+          int a = out.tris[t][k], b = out.tris[t][(k + 1) % 3];
+          et[{std::min(a, b), std::max(a, b)}].push_back(t);
+        }
+      int flips = 0;
+      std::vector<char> done(out.tris.size(), 0);
+      for (auto& [e, ts] : et) {
+        if (ts.size() != 2 || done[ts[0]] || done[ts[1]]) continue;
+        auto &T0 = out.tris[ts[0]], &T1 = out.tris[ts[1]];
+        int c = -1, d = -1;
+        for (int k = 0; k < 3; ++k) {
+          if (T0[k] != e.first && T0[k] != e.second) c = T0[k];
+          if (T1[k] != e.first && T1[k] != e.second) d = T1[k];
+        }
+        if (c < 0 || d < 0 || c == d) continue;
+        // T0 = (a, b, c) counter-clockwise for some order of a, b
+        int a = e.first, b = e.second;
+        if (orient(out.uv[a], out.uv[b], out.uv[c]) < 0) std::swap(a, b);
+        std::array<int, 3> N0{a, d, c}, N1{d, b, c};
+        if (!(orient(out.uv[N0[0]], out.uv[N0[1]], out.uv[N0[2]]) > 0) || !(orient(out.uv[N1[0]], out.uv[N1[1]], out.uv[N1[2]]) > 0))
+          continue;
+        double before = std::min(tri_quality(p3[T0[0]], p3[T0[1]], p3[T0[2]]), tri_quality(p3[T1[0]], p3[T1[1]], p3[T1[2]]));
+        double after = std::min(tri_quality(p3[N0[0]], p3[N0[1]], p3[N0[2]]), tri_quality(p3[N1[0]], p3[N1[1]], p3[N1[2]]));
+        if (after > before * 1.01 + 1e-12) {
+          T0 = N0, T1 = N1;
+          done[ts[0]] = done[ts[1]] = 1;
+          ++flips;
+        }
+      }
+      total += flips;
+      if (flips == 0) break;
+    }
+    return total;
+  };
+  auto rebuild_adjacency = [&]() {
+    for (auto& v : vt) v.clear();
+    for (auto& v : nbr) v.clear();
+    for (int t = 0; t < static_cast<int>(out.tris.size()); ++t)
+      for (int k = 0; k < 3; ++k) {
+        int a = out.tris[t][k];
+        vt[a].push_back(t);
+        for (int j = 1; j < 3; ++j) nbr[a].push_back(out.tris[t][(k + j) % 3]);
+      }
+    for (auto& n : nbr) {
+      std::sort(n.begin(), n.end());
+      n.erase(std::unique(n.begin(), n.end()), n.end());
+    }
+  };
+  swaps();
+  rebuild_adjacency();
+  for (int pass = 0; pass < in.smooth_passes; ++pass)
+    for (int i = nb; i < np; ++i) {
+      if (nbr[i].empty()) continue;
+      std::array<double, 2> m{0, 0};
+      for (int j : nbr[i]) m[0] += out.uv[j][0], m[1] += out.uv[j][1];
+      m[0] /= nbr[i].size(), m[1] /= nbr[i].size();
+      double before = 1;
+      for (int t : vt[i]) before = std::min(before, q3(t));
+      auto old = out.uv[i];
+      auto oldp = p3[i];
+      out.uv[i] = m;
+      p3[i] = in.point(m[0], m[1]);
+      bool ok = true;
+      double after = 1;
+      for (int t : vt[i]) {
+        auto& tr = out.tris[t];
+        if (!(orient(out.uv[tr[0]], out.uv[tr[1]], out.uv[tr[2]]) > 0)) { ok = false; break; }
+        after = std::min(after, q3(t));
+      }
+      if (!ok || after < before) out.uv[i] = old, p3[i] = oldp;
+    }
+  swaps();
+  std::sort(out.tris.begin(), out.tris.end());
+  out.min_quality = 1;
+  for (int t = 0; t < static_cast<int>(out.tris.size()); ++t) out.min_quality = std::min(out.min_quality, q3(t));
+  return out;
+}
+
+}  // namespace meshflow::sweep::detail

@@ -1,0 +1,46 @@
+// meshflow sweep — PRIVATE header: the 2D mesher of one face's parameter domain (CGAL's
+// constrained Delaunay triangulation, in uv_mesher.cpp only). No CGAL type here.
+//
+// Why our own refinement loop around CGAL's CDT instead of CGAL::Delaunay_mesher_2: the mesher
+// splits constrained edges that are encroached, and our boundary nodes are fixed (they are the
+// divisions the integer program chose and the nodes neighbouring faces share). Here a
+// candidate point that would encroach on a constraint is replaced by the bad triangle's
+// centroid, so the boundary is never touched. Sizes are 3D: a triangle is refined while its
+// longest 3D edge exceeds `refine_ratio` × size(centroid), so the surface metric needs no
+// parameterisation-specific handling (poles, stretched B-splines).
+#pragma once
+
+#include <array>
+#include <cstddef>
+#include <functional>
+#include <vector>
+
+namespace meshflow::sweep::detail {
+
+struct UVMeshInput {
+  std::vector<std::array<double, 2>> uv;     // boundary points (any scaling of u, v)
+  std::vector<std::array<int, 2>> segments;  // closed loops of constrained segments
+  std::function<std::array<double, 3>(double, double)> point;  // surface point at (u, v)
+  std::function<double(double, double)> size;                  // target 3D edge length at (u, v)
+  // optional turn-angle rule: a triangle whose vertex normals differ by more than max_turn
+  // (radians) is refined while its longest edge exceeds min_length
+  std::function<std::array<double, 3>(double, double)> normal;
+  double max_turn = 0, min_length = 0;
+  double refine_ratio = 1.3;
+  double min_quality = 0.4;  // 3D shape quality 4 sqrt(3) area / sum l^2 below which a triangle gets its circumcentre
+  int max_passes = 60;
+  int smooth_passes = 4;
+  std::size_t max_points = 400000;
+};
+
+struct UVMeshOutput {
+  std::vector<std::array<double, 2>> uv;  // the input boundary points (same indices), then new points
+  std::vector<std::array<int, 3>> tris;   // counter-clockwise in (u, v), inside the loops only
+  int passes = 0;
+  double min_quality = 1;  // of the result
+};
+
+// Throws std::runtime_error (crossing constraints, a point budget exceeded) with the reason.
+UVMeshOutput mesh_uv(const UVMeshInput& in);
+
+}  // namespace meshflow::sweep::detail
