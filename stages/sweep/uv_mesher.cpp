@@ -173,6 +173,19 @@ UVMeshOutput mesh_uv(const UVMeshInput& in) {
         bool near = false;
         for (int i = 0; i < 3; ++i) near |= std::sqrt(CGAL::squared_distance(p, f->vertex(i)->point())) < 1e-3 * lmin;
         if (near) continue;
+        // nor a point closer than h/4 (in 3D) to a vertex of the triangle it falls in or of the
+        // bad triangle: it would only make a tiny edge
+        auto x = in.point(p.x(), p.y());
+        auto lf2 = cdt.locate(p, f);
+        for (CDT::Face_handle fh : std::array<CDT::Face_handle, 2>{f, lf2}) {
+          if (cdt.is_infinite(fh)) continue;
+          for (int i = 0; i < 3; ++i) {
+            auto vv = fh->vertex(i);
+            if (cdt.is_infinite(vv)) continue;
+            near |= dist3(x, p3[vv->info()]) < 0.25 * std::min(h, L);
+          }
+        }
+        if (near) continue;
       }
       cand.push_back({big ? L / h : 1 - q, p, f});
     }
