@@ -231,6 +231,20 @@ TEST_CASE("shell: the medial radius bounds the thickness in a narrow far field; 
   CHECK(thrown);
 }
 
+TEST_CASE("shell: cdt2 triangulates a square with a hole and refuses crossing segments") {
+  std::vector<std::array<double, 2>> p = {{0, 0}, {1, 0}, {1, 1}, {0, 1}, {0.4, 0.4}, {0.6, 0.4}, {0.6, 0.6}, {0.4, 0.6}};
+  std::vector<std::array<std::int32_t, 2>> seg = {{0, 1}, {1, 2}, {2, 3}, {3, 0}, {4, 5}, {5, 6}, {6, 7}, {7, 4}};
+  auto t = sh::cdt2(p, seg);
+  CHECK(t.size() == 10);  // 2n - 2 - hull = 16 - 2 - 4
+  for (auto& tri : t)
+    for (int c : tri) CHECK((c >= 0 && c < 8));
+  // the two diagonals of the square cross: the intersection point would be a new vertex with no
+  // input index (this used to crash the shell on DLR-F6, where station chords crossed in (u,v))
+  seg.push_back({0, 2});
+  seg.push_back({1, 3});
+  CHECK_THROWS_AS(sh::cdt2(p, seg), std::runtime_error);
+}
+
 TEST_CASE("shell: refuses missing inputs") {
   TestContext none("shell", {}, {});
   CHECK_THROWS_AS(none.run(), StageError);
