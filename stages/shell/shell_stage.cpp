@@ -383,7 +383,9 @@ struct Stage {
       for (int end = 0; end < 2; ++end) {
         int v = end ? I.v1 : I.v0;
         if (v < 0 || !v_has[v]) continue;
-        double R = blend * v_t[v];
+        // within at most 30% of the edge from each end: on a short edge (the 0.004-long
+        // trailing-edge arc of a rounded tip) the middle keeps its own averaged normal
+        double R = std::min(blend * v_t[v], 0.3 * L);
         for (std::size_t k = 0; k < n; ++k) {
           double a = end ? L - I.arc[k] : I.arc[k];
           double beta = R > 0 ? smoothstep(1 - a / R) : (a == 0 ? 1.0 : 0.0);
