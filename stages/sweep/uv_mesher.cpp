@@ -118,9 +118,14 @@ UVMeshOutput mesh_uv(const UVMeshInput& in) {
   } catch (const std::exception& e) {
     throw std::runtime_error(std::string("the boundary loops cross in the parameter plane (") + e.what() + ")");
   }
-  if (static_cast<std::size_t>(cdt.number_of_vertices()) != in.uv.size())
-    throw std::runtime_error("the boundary has coincident or crossing points in the parameter plane (" +
-                             std::to_string(in.uv.size() - cdt.number_of_vertices()) + " merged)");
+  {
+    long nv = static_cast<long>(cdt.number_of_vertices()), ni = static_cast<long>(in.uv.size());
+    if (nv < ni)
+      throw std::runtime_error("the boundary has " + std::to_string(ni - nv) + " coincident points in the parameter plane");
+    if (nv > ni)
+      throw std::runtime_error("the boundary loops cross themselves or each other in the parameter plane (" +
+                               std::to_string(nv - ni) + " crossings; e.g. a junction strip wider than the face allows)");
+  }
 
   // ── refinement ──
   for (int pass = 0; pass < in.max_passes; ++pass) {
