@@ -487,6 +487,60 @@ bool snap(const Transform& T, double tol, Transform& out) {
   return true;
 }
 
+// Refines a rigid map on the paired faces (point-to-plane Gauss-Newton): the images of the lo
+// face samples should lie on the hi partner's surface. The features (vertices, edge midpoints:
+// intersection curves, accurate to ~1e-7) enter with a small weight, only to hold the motions the
+// surfaces leave free (sliding along a plane). Why own code: a 6-unknown linear least-squares
+// step (Eigen QR) repeated a few times; no library offers point-to-CAD-surface registration.
+Rigid refine(const cad::Shape& s, const Transform& T, const std::vector<Pair>& faces, const std::map<int, std::vector<FaceSample>>& samples,
+             const std::vector<P3>& P, const std::vector<P3>& Q, double size) {
+  Rigid g;
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) g.R(i, j) = T.affine[4 * i + j];
+    g.t(i) = T.affine[4 * i + 3];
+  }
+  const double w = 1e-3;
+  for (int it = 0; it < 6; ++it) {
+    std::vector<Eigen::Matrix<double, 1, 6>> rows;
+    std::vector<double> rhs;
+    for (const Pair& fp : faces) {
+      std::optional<cad::Vec2> hint;
+      for (const FaceSample& fs : samples.at(fp.lo)) {
+        Eigen::Vector3d y = g.R * ev(fs.x) + g.t;
+        cad::SurfaceProjection pr = s.project_to_face(fp.hi, {y(0), y(1), y(2)}, hint);
+        hint = cad::Vec2{pr.u, pr.v};
+        Eigen::Vector3d n = ev(p3(s.face_normal(fp.hi, pr.u, pr.v)));
+        if (n.norm() < 0.5) continue;
+        Eigen::Matrix<double, 1, 6> J;
+        J << y.cross(n).transpose(), n.transpose();  // d(n.(y + w x y + v)) / d(w, v)
+        rows.push_back(J);
+        rhs.push_back(-n.dot(y - ev(p3(pr.point))));
+      }
+    }
+    for (std::size_t i = 0; i < P.size(); ++i) {
+      Eigen::Vector3d y = g.R * ev(P[i]) + g.t, r = y - ev(Q[i]);
+      for (int k = 0; k < 3; ++k) {
+        Eigen::Matrix<double, 1, 6> J = Eigen::Matrix<double, 1, 6>::Zero();
+        Eigen::Vector3d ek = Eigen::Vector3d::Unit(k);
+        J.head<3>() = w * y.cross(ek).transpose();  // e_k . (w x y) = w . (y x e_k)
+        J(3 + k) = w;
+        rows.push_back(J);
+        rhs.push_back(-w * r(k));
+      }
+    }
+    Eigen::MatrixXd A(rows.size(), 6);
+    Eigen::VectorXd b(rows.size());
+    for (std::size_t i = 0; i < rows.size(); ++i) A.row(i) = rows[i], b(i) = rhs[i];
+    Eigen::Matrix<double, 6, 1> x = A.colPivHouseholderQr().solve(b);
+    Eigen::Vector3d om = x.head<3>(), v = x.tail<3>();
+    Eigen::Matrix3d Rw = om.norm() > 0 ? Eigen::AngleAxisd(om.norm(), om.normalized()).toRotationMatrix() : Eigen::Matrix3d::Identity();
+    g.R = Rw * g.R;
+    g.t = Rw * g.t + v;
+    if (om.norm() * size + v.norm() < 1e-15 * size) break;
+  }
+  return g;
+}
+
 }  // namespace
 
 // ── Transform ───────────────────────────────────────────────────────────────────────────
@@ -663,6 +717,7 @@ Match find(const cad::Shape& s, double rel_tol, const std::function<void(const s
   struct Good {
     Transform T;
     Pairing P;
+    std::vector<P3> P_feat, Q_feat;  // the feature pairs it was fitted on
   };
   std::vector<Good> good;
   std::string last_error;
@@ -681,7 +736,7 @@ Match find(const cad::Shape& s, double rel_tol, const std::function<void(const s
       last_error = pr.error;
       continue;
     }
-    good.push_back({T, pr});
+    good.push_back({T, pr, P, Q});
   }
   auto describe = [](const Transform& T) {
     return T.kind == "translation" ? "translation by " + fmt(T.translation)
@@ -705,15 +760,26 @@ Match find(const cad::Shape& s, double rel_tol, const std::function<void(const s
     throw StageError("periodic_match: " + names + " do not match: " + last_error);
   }
 
-  // ── snap to exact values when that fits at least as well ──
+  // ── refine on the surfaces, then snap to exact values, each when it fits at least as well ──
   Good g = std::move(good[0]);
   Pairing full_pr = pair_entities(s, lo, hi, g.T, tol, m.model_size, samples, false);
   if (!full_pr.ok) throw StageError("periodic_match: " + full_pr.error);
+  {
+    Transform R = classify(refine(s, g.T, full_pr.faces, samples, g.P_feat, g.Q_feat, m.model_size), tol);
+    if (R.kind != "screw") {
+      Pairing rp = pair_entities(s, lo, hi, R, tol, m.model_size, samples, false);
+      bool take = rp.ok && rp.face_mis < full_pr.face_mis;
+      say("periodic_match: fitted on the features " + describe(g.T) + " (face mismatch " + fmt(full_pr.face_mis) +
+          "); refined on the surfaces " + describe(R) + " (face mismatch " + (rp.ok ? fmt(rp.face_mis) : "-") + "): " +
+          (take ? "refined" : "kept the fit"));
+      if (take) g.T = R, full_pr = std::move(rp);
+    }
+  }
   Transform snapped;
   if (snap(g.T, tol, snapped)) {
     Pairing sp = pair_entities(s, lo, hi, snapped, tol, m.model_size, samples, false);
     bool take = sp.ok && sp.face_mis <= full_pr.face_mis + 1e-13 * m.model_size;
-    say("periodic_match: fitted " + describe(g.T) + " (face mismatch " + fmt(full_pr.face_mis) + "); exact candidate " + describe(snapped) +
+    say("periodic_match: " + describe(g.T) + " (face mismatch " + fmt(full_pr.face_mis) + "); exact candidate " + describe(snapped) +
         " (face mismatch " + (sp.ok ? fmt(sp.face_mis) : "-") + "): " + (take ? "snapped" : "kept the fit"));
     if (take) {
       g.T = snapped;

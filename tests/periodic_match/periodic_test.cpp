@@ -260,6 +260,28 @@ TEST_CASE("Rotor 67: a bulge on the periodic_hi face is refused, naming the face
   CHECK(per::find(tiny, 1e-6).faces.size() == 1);
 }
 
+TEST_CASE("Rotor 67 moved onto an oblique axis: the rotation is found and refined on the surfaces") {
+  if (!fs::exists(kRotor)) return;
+  Shape s0 = Shape::load(rotor().shape.path);
+  P3 c{0.1, -0.2, 0.3}, d{1, 2, 3}, shift{0.05, 0.01, -0.02};
+  Shape s = pmtest::moved(s0, c, d, 0.4, shift);
+  std::vector<std::string> log;
+  per::Match m = per::find(s, 1e-6, [&](const std::string& l) { log.push_back(l); });
+  for (auto& l : log) MESSAGE(l);
+  per::Transform R = per::Transform::rotation(c, d, 0.4);
+  P3 a = R.apply_vector({1, 0, 0});
+  const P3& f = m.transform.axis_dir;
+  double off = std::hypot(a[1] * f[2] - a[2] * f[1], a[2] * f[0] - a[0] * f[2], a[0] * f[1] - a[1] * f[0]);  // sin of the angle between
+  double radius = 0.84296;  // ft, the casing radius (the first test case)
+  MESSAGE("oblique Rotor 67: axis off by " << off << " rad, angle off by "
+                                          << std::abs(std::abs(m.transform.angle) - 2 * M_PI / 22) << "; face mismatch / radius "
+                                          << m.face_mismatch / radius);
+  CHECK(m.transform.kind == "rotation");
+  CHECK(off < 1e-9);
+  CHECK(std::abs(std::abs(m.transform.angle) - 2 * M_PI / 22) < 1e-9);
+  CHECK(m.face_mismatch <= 1e-12 * radius);
+}
+
 TEST_CASE("box with a hole: translation, paired faces, edges with orientation, vertices") {
   Shape s = tagged_box(2.0);
   per::Match m = per::find(s, 1e-6);
