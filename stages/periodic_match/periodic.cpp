@@ -675,14 +675,16 @@ Match find(const cad::Shape& s, double rel_tol, const std::function<void(const s
   std::size_t best_count = 0;
   std::string best_missing;
   long tried = 0;
+  const long max_tries = 200000;  // symmetric sides with many congruent features: bounded work
   for (int ja : cand[a])
     for (int jb : cand[b]) {
+      if (tried > max_tries) break;
       if (jb == ja || std::abs(dist(FH[ja].p, FH[jb].p) - dist(FL[a].p, FL[b].p)) > 2 * tol) continue;
       for (int jc : cand[c]) {
         if (jc == ja || jc == jb || std::abs(dist(FH[ja].p, FH[jc].p) - dist(FL[a].p, FL[c].p)) > 2 * tol ||
             std::abs(dist(FH[jb].p, FH[jc].p) - dist(FL[b].p, FL[c].p)) > 2 * tol)
           continue;
-        if (++tried > 200000) break;
+        if (++tried > max_tries) break;
         Rigid g = kabsch({FL[a].p, FL[b].p, FL[c].p}, {FH[ja].p, FH[jb].p, FH[jc].p});
         std::vector<int> corr(FL.size(), -1);
         std::set<int> used;
