@@ -75,6 +75,8 @@ TEST_CASE("meshflow run: workflows/rotor67.yaml matches the periodic sides by th
   CHECK(std::abs(m.transform.angle - 2 * M_PI / 22) < 1e-15);
   CHECK(m.faces.size() == 1);
   CHECK(m.face_mismatch < 1e-12 * m.model_size);
-  MESSAGE("rotor67 periodic_match stats: " << stage_stats(dir / "out", "periodic_match").dump());
+  auto st = stage_stats(dir / "out", "periodic_match");
+  MESSAGE("rotor67 periodic_match stats: " << st.dump());
+  CHECK(st["divisions"]["checked"] == true);  // the workflow runs balance: paired edges have equal divisions
   fs::remove_all(dir);
 }
