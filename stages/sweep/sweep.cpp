@@ -247,6 +247,8 @@ class Builder {
   void build_edges();
   void build_junction_curves();
   void build_slides();
+  void slide_ends();
+  std::map<std::pair<int, int>, std::uint32_t> slide_end_image;  // (vertex, other face) -> image node on an edge
   void mesh_face(int f);
   std::uint32_t shell_image(std::uint32_t n, int face);
   void volume();
@@ -468,6 +470,45 @@ void Builder::build_junction_curves() {
 
 // Wall|other edges that are not junctions: the shell images of their nodes lie on the other
 // face (projected onto it exactly).
+// The image of a sliding edge's end vertex lies on the other face's edge leaving that vertex
+// (e.g. the hub's shell meets a periodic side along the side's inlet edge): that edge is cut
+// there, as at junction corners, so the side face's boundary runs through the image.
+void Builder::slide_ends() {
+  for (int e = 0; e < ne; ++e) {
+    if (slide_other[e] < 0) continue;
+    int B = slide_other[e];
+    auto vs = S.edge_vertices(e);
+    for (int end = 0; end < 2; ++end) {
+      int V = vs[end];
+      if (slide_end_image.count({V, B})) continue;
+      int found = -1;
+      for (int e2 : S.face_edges(B)) {
+        if (e2 == e || S.edge_degenerate(e2) || slide_other[e2] >= 0 || junction_of[e2] >= 0) continue;
+        auto v2 = S.edge_vertices(e2);
+        if (v2[0] == V || v2[1] == V) found = (found == -1) ? e2 : -2;
+      }
+      if (found < 0) continue;
+      std::pair<double, shell::Vec3> td{0, {0, 0, 0}};
+      bool ok = false;
+      for (auto& vv : SH.vertices)
+        if (vv.vertex == V) td = {vv.t, vv.d}, ok = true;
+      if (!ok) continue;
+      V3 x = add(v3(S.vertex_point(V)), mul(V3{td.second[0], td.second[1], td.second[2]}, td.first));
+      auto pr = S.project_to_edge(found, cv(x));
+      auto v2 = S.edge_vertices(found);
+      int cend = v2[0] == V ? 0 : 1;
+      if (cuts[found][cend].node != kNone) {
+        slide_end_image[{V, B}] = cuts[found][cend].node;
+        continue;
+      }
+      std::uint32_t n = mk(v3(pr.point), 1, found + 1, pr.t);
+      cuts[found][cend] = {pr.t, n};
+      ++R.edges_cut;
+      slide_end_image[{V, B}] = n;
+    }
+  }
+}
+
 void Builder::build_slides() {
   for (int e = 0; e < ne; ++e) {
     if (slide_other[e] < 0) continue;
@@ -475,6 +516,13 @@ void Builder::build_slides() {
     for (std::size_t k = 0; k < en[e].size(); ++k) {
       std::uint32_t n = en[e][k];
       if (image.count(n)) continue;
+      if (k == 0 || k + 1 == en[e].size()) {
+        auto it = slide_end_image.find({S.edge_vertices(e)[k == 0 ? 0 : 1], B});
+        if (it != slide_end_image.end()) {
+          image[n] = it->second;
+          continue;
+        }
+      }
       std::pair<double, shell::Vec3> td;
       bool is_vertex = (k == 0 || k + 1 == en[e].size());
       if (is_vertex) {
@@ -522,6 +570,7 @@ void Builder::mesh_face(int f) {
   struct LP {
     std::uint32_t node;
     std::array<double, 2> uv;
+    bool pole = false;  // the start of a degenerate edge: the segment to the next point is the pole
   };
   std::vector<std::vector<LP>> loops;
   // (u,v) on f of a node classified elsewhere: through the p-curves of f's edges (a seam's two
@@ -564,7 +613,7 @@ void Builder::mesh_face(int f) {
         int V = S.edge_vertices(e)[0];
         cad::Vec2 q = S.edge_uv(e, f, eu.reversed ? r.hi : r.lo, eu.reversed);
         if (vnode[V] == kNone) vnode[V] = mk(v3(S.vertex_point(V)), 0, V + 1);
-        raw.push_back({vnode[V], {q.u, q.v}});
+        raw.push_back({vnode[V], {q.u, q.v}, true});
         continue;
       }
       int jb = junction_of[e];
@@ -617,9 +666,38 @@ void Builder::mesh_face(int f) {
         }
       }
     }
+    // periodic surfaces: a projected point may come back a period away from its neighbours
+    // (OCCT returns u in [0, 2 pi) on a revolved hub whose sector straddles u = 0): unwrap
+    // every point to the period nearest the previous point of its loop
+    auto per = S.face_periods(f);
+    for (int k = 0; k < 2; ++k) {
+      if (!(per[k] > 0)) continue;
+      for (std::size_t i = 1; i < raw.size(); ++i) {
+        if (raw[i - 1].pole) continue;  // a pole's p-curve may legitimately span half a period or more
+        double d = raw[i].uv[k] - raw[i - 1].uv[k];
+        raw[i].uv[k] -= per[k] * std::round(d / per[k]);
+      }
+    }
     if (raw.size() >= 3) loops.push_back(std::move(raw));
   }
   if (loops.empty()) return;
+  // inner loops a period away from the outer one (each loop was unwrapped on its own)
+  {
+    auto per = S.face_periods(f);
+    for (int k = 0; k < 2; ++k) {
+      if (!(per[k] > 0)) continue;
+      double lo = INFINITY, hi = -INFINITY;
+      for (auto& p : loops[0]) lo = std::min(lo, p.uv[k]), hi = std::max(hi, p.uv[k]);
+      for (std::size_t l = 1; l < loops.size(); ++l) {
+        double mean = 0;
+        for (auto& p : loops[l]) mean += p.uv[k] / loops[l].size();
+        double shift = 0;
+        if (mean < lo) shift = per[k] * std::ceil((lo - mean) / per[k]);
+        if (mean > hi) shift = -per[k] * std::ceil((mean - hi) / per[k]);
+        for (auto& p : loops[l]) p.uv[k] += shift;
+      }
+    }
+  }
   Reparam RP(S, f);
   detail::UVMeshInput in;
   std::vector<std::uint32_t> bnode;
@@ -899,6 +977,7 @@ model::Mesh Builder::run() {
     j.p0.assign(n, kNone), j.pa.assign(n, kNone), j.pb.assign(n, kNone), j.pc.assign(n, kNone);
   }
   junction_ends();
+  slide_ends();
   build_edges();
   build_junction_curves();
   build_slides();
