@@ -674,8 +674,10 @@ void Builder::mesh_face(int f) {
       if (!(per[k] > 0)) continue;
       for (std::size_t i = 1; i < raw.size(); ++i) {
         if (raw[i - 1].pole) continue;  // a pole's p-curve may legitimately span half a period or more
+        // only jumps beyond 3/4 of a period: a one-division edge may span half a period (the
+        // semicircular trailing-edge arc of a revolved tip)
         double d = raw[i].uv[k] - raw[i - 1].uv[k];
-        raw[i].uv[k] -= per[k] * std::round(d / per[k]);
+        if (std::abs(d) > 0.75 * per[k]) raw[i].uv[k] -= per[k] * std::round(d / per[k]);
       }
     }
     if (raw.size() >= 3) loops.push_back(std::move(raw));

@@ -165,3 +165,28 @@ TEST_CASE("sweep refuses divisions that do not belong to the shell, naming the e
     CHECK(what.find("re-run balance") != std::string::npos);
   }
 }
+
+TEST_CASE("sweep and tet on the paper's wing (STEP, rounded tip, tunnel wall): valid and conforming") {
+  fs::path stp = fs::path(MESHFLOW_DATA_DIR) / "wingtip/3d_bl_wing.stp";
+  if (!fs::exists(stp)) return;
+  fs::path dir = mftest::temp_dir("sweep-step");
+  mftest::write_text(dir / "w.yaml", "meshflow: 1\nname: sweep-step\nstages:\n"
+                                     "  geometry: {kind: step, with: {file: " + stp.string() + "}}\n"
+                                     "  heal: {kind: heal, needs: [geometry]}\n"
+                                     "  medial: {kind: medial, needs: [heal]}\n"
+                                     "  shell: {kind: shell, needs: [heal, medial], with: {thickness: 0.05, topology: C}}\n"
+                                     "  balance: {kind: balance, needs: [heal, shell]}\n"
+                                     "  sweep: {kind: sweep, needs: [heal, shell, balance]}\n"
+                                     "  tet: {kind: tet, needs: [sweep]}\n"
+                                     "outputs:\n  mesh: {from: tet}\n");
+  auto r = mftest::sh("cd " + dir.string() + " && " + std::string(MESHFLOW_EXE) + " run w.yaml 2>&1");
+  INFO(r.out);
+  REQUIRE(r.code == 0);
+  auto mesh = meshflow::io::read_mesh(dir / "out/sweep-step/mesh.msh");
+  auto st = meshflow::model::mesh_stats(mesh);
+  CHECK(st.at("invalid").get<int>() == 0);
+  CHECK(st.at("nonconforming_faces").get<int>() == 0);
+  CHECK(count(mesh, Shape::Prism, 3) > 1000);
+  CHECK(count(mesh, Shape::Hex, 3) > 10);  // the root junction on the tunnel wall
+  CHECK(count(mesh, Shape::Tet, 3) > 1000);
+}
