@@ -222,21 +222,11 @@ UVMeshOutput mesh_uv(const UVMeshInput& in) {
     if (f->info().in_domain()) out.tris.push_back({f->vertex(0)->info(), f->vertex(1)->info(), f->vertex(2)->info()});
   std::sort(out.tris.begin(), out.tris.end());
 
-  // ── smoothing of the new points: Laplacian in (u, v), a move kept only when every incident
-  //    triangle stays counter-clockwise ──
+  // ── edge swaps, then smoothing of the new points: Laplacian in (u, v), a move kept only
+  //    when every incident triangle stays counter-clockwise and the worst 3D quality does not drop ──
   const int nb = static_cast<int>(in.uv.size());
   const int np = static_cast<int>(out.uv.size());
-  std::vector<std::vector<int>> vt(np), nbr(np);
-  for (int t = 0; t < static_cast<int>(out.tris.size()); ++t)
-    for (int k = 0; k < 3; ++k) {
-      int a = out.tris[t][k];
-      vt[a].push_back(t);
-      for (int j = 1; j < 3; ++j) nbr[a].push_back(out.tris[t][(k + j) % 3]);
-    }
-  for (auto& n : nbr) {
-    std::sort(n.begin(), n.end());
-    n.erase(std::unique(n.begin(), n.end()), n.end());
-  }
+  std::vector<std::vector<int>> vt(np), nbr(np);  // triangles and neighbours of each point
   // 3D shape quality of a triangle: 4 sqrt(3) area / sum of squared edges (1 equilateral)
   p3.resize(np);
   auto q3 = [&](int t) {
@@ -301,7 +291,7 @@ UVMeshOutput mesh_uv(const UVMeshInput& in) {
     }
   };
   swaps();
-  rebuild_adjacency();
+  rebuild_adjacency();  // (after the swaps: the smoothing needs the final connectivity)
   for (int pass = 0; pass < in.smooth_passes; ++pass)
     for (int i = nb; i < np; ++i) {
       if (nbr[i].empty()) continue;
