@@ -5,6 +5,7 @@
 
 #include "engine/stage.hpp"
 #include "stages/cad/cad.hpp"
+#include "stages/cad/vec3.hpp"
 #include "stages/shell/shell.hpp"
 
 #include <nlohmann/json.hpp>
@@ -21,14 +22,7 @@
 namespace meshflow::balance {
 namespace {
 
-using V3 = std::array<double, 3>;
-V3 v3(const cad::Vec3& p) { return {p.x, p.y, p.z}; }
-V3 sub(V3 a, V3 b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
-V3 add(V3 a, V3 b) { return {a[0] + b[0], a[1] + b[1], a[2] + b[2]}; }
-V3 mul(V3 a, double s) { return {a[0] * s, a[1] * s, a[2] * s}; }
-double dot(V3 a, V3 b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
-V3 cross(V3 a, V3 b) { return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]}; }
-double norm(V3 a) { return std::sqrt(dot(a, a)); }
+using namespace cad::vec;  // V3, v3, add, sub, mul, dot, cross, norm
 double now() { return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count(); }
 
 constexpr int kSamples = 256;  // sub-intervals per CAD edge (Simpson) and per sampled curve

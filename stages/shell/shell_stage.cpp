@@ -4,6 +4,7 @@
 // checks. Method and artifact: stages/shell/shell.hpp. No CGAL, no OCCT header here.
 #include "engine/stage.hpp"
 #include "stages/cad/cad.hpp"
+#include "stages/cad/vec3.hpp"
 #include "stages/medial/medial.hpp"
 #include "stages/shell/shell.hpp"
 
@@ -23,14 +24,7 @@ namespace meshflow::shell {
 namespace {
 
 // ── small vector helpers ──
-Vec3 v3(const cad::Vec3& a) { return {a.x, a.y, a.z}; }
-cad::Vec3 cv(const Vec3& a) { return {a[0], a[1], a[2]}; }
-Vec3 add(Vec3 a, Vec3 b) { return {a[0] + b[0], a[1] + b[1], a[2] + b[2]}; }
-Vec3 sub(Vec3 a, Vec3 b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
-Vec3 mul(Vec3 a, double s) { return {a[0] * s, a[1] * s, a[2] * s}; }
-double dot(Vec3 a, Vec3 b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
-Vec3 cross(Vec3 a, Vec3 b) { return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]}; }
-double norm(Vec3 a) { return std::sqrt(dot(a, a)); }
+using namespace cad::vec;  // v3, cv, add, sub, mul, dot, cross, norm
 Vec3 unit(Vec3 a) {
   double l = norm(a);
   return l > 1e-300 ? mul(a, 1 / l) : Vec3{0, 0, 0};

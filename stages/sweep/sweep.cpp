@@ -5,6 +5,7 @@
 #include "engine/stage.hpp"
 #include "stages/balance/balance.hpp"
 #include "stages/cad/cad.hpp"
+#include "stages/cad/vec3.hpp"
 #include "stages/model/quality.hpp"
 #include "stages/shell/shell.hpp"
 #include "stages/sweep/uv_mesher.hpp"
@@ -24,17 +25,9 @@
 namespace meshflow::sweep {
 namespace {
 
-using V3 = std::array<double, 3>;
+using namespace cad::vec;  // V3, v3, cv, add, sub, mul, dot, cross, norm
 constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
 
-V3 v3(const cad::Vec3& p) { return {p.x, p.y, p.z}; }
-cad::Vec3 cv(const V3& p) { return {p[0], p[1], p[2]}; }
-V3 add(V3 a, V3 b) { return {a[0] + b[0], a[1] + b[1], a[2] + b[2]}; }
-V3 sub(V3 a, V3 b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
-V3 mul(V3 a, double s) { return {a[0] * s, a[1] * s, a[2] * s}; }
-double dot(V3 a, V3 b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
-V3 cross(V3 a, V3 b) { return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]}; }
-double norm(V3 a) { return std::sqrt(dot(a, a)); }
 V3 lerp(V3 a, V3 b, double s) { return add(a, mul(sub(b, a), s)); }
 V3 jv3(const nlohmann::json& j) { return {j.at(0).get<double>(), j.at(1).get<double>(), j.at(2).get<double>()}; }
 
