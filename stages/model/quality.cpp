@@ -1025,7 +1025,8 @@ void evaluate_chunk(const JacobianSpace& sp, const Eigen::MatrixXd& X, int count
                     const std::vector<const double*>& xyz, ElementQuality* out) {
   const int np = (int)sp.pts.size();
   Eigen::MatrixXd V(np, count);
-  double H[64];
+  thread_local std::vector<double> H;
+  H.resize(count);
   thread_local std::vector<double> Jp;
   Jp.resize(9 * np);
   Eigen::MatrixXd GX;
@@ -1096,7 +1097,7 @@ std::vector<std::vector<ElementQuality>> mesh_quality(const Mesh& m, int threads
       res[bi].resize(b.size());
       const JacobianSpace& sp = space(b.shape, b.order);
       const int n = b.nodes_per_element();
-      constexpr int kChunk = 32;
+      constexpr int kChunk = 128;  // dense shapes: wide enough for an efficient G X and T V
       const size_t nchunks = (b.size() + kChunk - 1) / kChunk;
       tbb::parallel_for(tbb::blocked_range<size_t>(0, nchunks), [&](const tbb::blocked_range<size_t>& r) {
         Eigen::MatrixXd X(n, 3 * kChunk);
