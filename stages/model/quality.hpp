@@ -30,7 +30,10 @@
 // sampled (reported in "sampled", not proven).
 // Pyramids (sampling): Gmsh's pyramidal space is rational, so det J is not a polynomial; we
 // sample det J at the equispaced pyramid lattice of order 3P+2 (apex excluded). A pyramid
-// valid at all samples but invalid between them can be missed.
+// valid at all samples but invalid between them can be missed. (Not done: the proof Gmsh
+// uses. In the collapsed coordinates x' = x/(1-z), y' = y/(1-z) the pyramid is the unit cube
+// and det J = (1-z)^-k q(x', y', z) with q a polynomial; q's tensor Bernstein coefficients on the
+// cube, with the rounding bound above, would prove validity like for hexes.)
 // Scaled Jacobian: min det J / max det J over the samples (the Bezier lattice points and
 // those of the subdivisions). <= 0 for invalid elements.
 // Aspect ratio: longest / shortest straight vertex-to-vertex edge of the element (for a thin
