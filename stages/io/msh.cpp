@@ -6,6 +6,10 @@
 #include "stages/io/reader.hpp"
 
 #include <algorithm>
+#include <array>
+#include <climits>
+#include <cstring>
+#include <limits>
 #include <charconv>
 #include <cmath>
 #include <fstream>
@@ -349,9 +353,29 @@ Mesh read_msh2(Cursor& c, const std::string& path) {
 }
 
 // ---- writing ----
+constexpr int kMaxRow = (kMaxOrder + 1) * (kMaxOrder + 1) * (kMaxOrder + 1);  // nodes of a hex of order kMaxOrder
+// Formats into a buffer of a few MB that is written to the file whenever it fills (formatting
+// and writing overlap in the page cache; no buffer of the file's size, no page faults on it).
 struct Out {
   std::string s;
   bool binary;
+  std::ofstream* f = nullptr;
+  const std::filesystem::path* path = nullptr;
+  static constexpr size_t kBlock = 8u << 20;
+  void flush() {
+    f->write(s.data(), static_cast<std::streamsize>(s.size()));
+    if (!*f) throw MeshIOError(path->string() + ": write failed (disk full?)");
+    s.clear();
+  }
+  void maybe_flush() {
+    if (s.size() >= kBlock) flush();
+  }
+  // room for n more bytes, returns where to put them (binary rows formatted in place)
+  char* grow(size_t n) {
+    const size_t at = s.size();
+    s.resize(at + n);
+    return s.data() + at;
+  }
   void raw(const void* p, size_t n) { s.append(static_cast<const char*>(p), n); }
   void txt(std::string_view t) { s.append(t); }
   void i(int v) {
@@ -489,30 +513,59 @@ void write_msh(const Mesh& in, const std::filesystem::path& path, bool binary) {
     auto& e = ents[{(*ndim)[i], (*ntag)[i]}];
     e.dim = (*ndim)[i], e.tag = (*ntag)[i];
   }
-  // bounding boxes missing: from the nodes of the entity's elements and its own nodes
-  std::map<std::pair<int, int>, std::array<double, 6>> bb;
-  auto grow = [&](std::pair<int, int> k, std::uint32_t i) {
-    auto it = bb.find(k);
-    if (it == bb.end()) it = bb.emplace(k, std::array<double, 6>{m.x[i], m.y[i], m.z[i], m.x[i], m.y[i], m.z[i]}).first;
-    auto& a = it->second;
-    const double p[3] = {m.x[i], m.y[i], m.z[i]};
-    for (int r = 0; r < 3; ++r) a[r] = std::min(a[r], p[r]), a[3 + r] = std::max(a[3 + r], p[r]);
-  };
-  for (auto& b : m.blocks)
-    for (auto i : b.nodes) grow({b.entity_dim, b.entity_tag}, i);
-  for (size_t i = 0; i < n; ++i) grow({(*ndim)[i], (*ntag)[i]}, (std::uint32_t)i);
-  for (auto& [k, e] : ents)
-    if (!std::isfinite(e.bbox[0])) {
-      auto it = bb.find(k);
-      for (int r = 0; r < 6; ++r) e.bbox[r] = it != bb.end() ? it->second[r] : 0.0;
+  // nodes grouped by entity (one map lookup per run of equal keys: nodes come entity by entity)
+  std::map<std::pair<int, int>, std::vector<std::uint32_t>> groups;
+  {
+    std::pair<int, int> last{INT_MIN, INT_MIN};
+    std::vector<std::uint32_t>* g = nullptr;
+    for (size_t i = 0; i < n; ++i) {
+      const std::pair<int, int> k{(*ndim)[i], (*ntag)[i]};
+      if (!g || k != last) g = &groups[k], last = k;
+      g->push_back((std::uint32_t)i);
     }
-
-  Out o{{}, binary};
-  {  // the binary size (nodes: tag, xyz, up to 2 parameters; elements: tag and node tags)
-    std::size_t est = n * 48 + 65536;
-    for (auto& b : m.blocks) est += b.size() * 8 * (1 + b.nodes_per_element()) + 64;
-    o.s.reserve(binary ? est : est * 3);
   }
+  // bounding boxes missing: from the nodes of the entity's elements and its own nodes
+  // (accumulated per block and per node group, no lookup per node)
+  bool need_bb = false;
+  for (auto& [k, e] : ents) need_bb = need_bb || !std::isfinite(e.bbox[0]);
+  if (need_bb) {
+    std::map<std::pair<int, int>, std::array<double, 6>> bb;
+    auto merge = [&](std::pair<int, int> k, const std::array<double, 6>& a) {
+      auto [it, fresh] = bb.emplace(k, a);
+      if (!fresh)
+        for (int r = 0; r < 3; ++r)
+          it->second[r] = std::min(it->second[r], a[r]), it->second[3 + r] = std::max(it->second[3 + r], a[3 + r]);
+    };
+    auto box = [&](const std::uint32_t* idx, size_t cnt) {
+      const double inf = std::numeric_limits<double>::infinity();
+      std::array<double, 6> a{inf, inf, inf, -inf, -inf, -inf};
+      for (size_t t = 0; t < cnt; ++t) {
+        const std::uint32_t i = idx[t];
+        a[0] = std::min(a[0], m.x[i]), a[3] = std::max(a[3], m.x[i]);
+        a[1] = std::min(a[1], m.y[i]), a[4] = std::max(a[4], m.y[i]);
+        a[2] = std::min(a[2], m.z[i]), a[5] = std::max(a[5], m.z[i]);
+      }
+      return a;
+    };
+    for (auto& b : m.blocks)
+      if (!b.nodes.empty()) merge({b.entity_dim, b.entity_tag}, box(b.nodes.data(), b.nodes.size()));
+    for (auto& [k, idx] : groups)
+      if (!idx.empty()) merge(k, box(idx.data(), idx.size()));
+    for (auto& [k, e] : ents)
+      if (!std::isfinite(e.bbox[0])) {
+        auto it = bb.find(k);
+        for (int r = 0; r < 6; ++r) e.bbox[r] = it != bb.end() ? it->second[r] : 0.0;
+      }
+  }
+  for (auto& b : m.blocks)  // refuse before creating the file
+    if (b.size() && !gmsh_type(b.shape, b.order))
+      throw MeshIOError(path.string() + ": MSH has no element type for a " + shape_name(b.shape) + " of order " +
+                        std::to_string(b.order));
+  std::ofstream f(path, std::ios::binary);
+  if (!f) throw MeshIOError(path.string() + ": cannot open the file for writing");
+
+  Out o{{}, binary, &f, &path};
+  o.s.reserve(Out::kBlock + (1u << 20));
   o.txt(binary ? "$MeshFormat\n4.1 1 8\n" : "$MeshFormat\n4.1 0 8\n");
   if (binary) {
     int one = 1;
@@ -545,9 +598,6 @@ void write_msh(const Mesh& in, const std::filesystem::path& path, bool binary) {
   }
   o.txt(binary ? "\n$EndEntities\n" : "$EndEntities\n");
 
-  // nodes grouped by entity
-  std::map<std::pair<int, int>, std::vector<std::uint32_t>> groups;
-  for (size_t i = 0; i < n; ++i) groups[{(*ndim)[i], (*ntag)[i]}].push_back((std::uint32_t)i);
   std::uint64_t tmin = n ? ~0ull : 0, tmax = 0;
   for (size_t i = 0; i < n; ++i) tmin = std::min(tmin, m.node_tag(i)), tmax = std::max(tmax, m.node_tag(i));
   o.txt("$Nodes\n");
@@ -560,14 +610,40 @@ void write_msh(const Mesh& in, const std::filesystem::path& path, bool binary) {
       if (param && (!std::isfinite(m.node_u[i]) || (dim == 2 && !std::isfinite(m.node_v[i])))) param = false;
     o.i(dim), o.i(k.second), o.i(param ? 1 : 0), o.z(idx.size());
     o.nl();
-    for (auto i : idx) o.z(m.node_tag(i)), o.nl();
-    for (auto i : idx) {
-      o.d(m.x[i]), o.d(m.y[i]), o.d(m.z[i]);
-      if (param) {
-        o.d(m.node_u[i]);
-        if (dim == 2) o.d(m.node_v[i]);
+    if (binary) {  // rows formatted in place, in blocks
+      const int nv = 3 + (param ? (dim == 2 ? 2 : 1) : 0);
+      for (size_t t0 = 0; t0 < idx.size(); t0 += 65536) {
+        const size_t t1 = std::min(idx.size(), t0 + 65536);
+        char* w = o.grow(8 * (t1 - t0));
+        for (size_t t = t0; t < t1; ++t, w += 8) {
+          const std::uint64_t tag = m.node_tag(idx[t]);
+          std::memcpy(w, &tag, 8);
+        }
+        o.maybe_flush();
       }
-      o.nl();
+      for (size_t t0 = 0; t0 < idx.size(); t0 += 65536) {
+        const size_t t1 = std::min(idx.size(), t0 + 65536);
+        char* w = o.grow(8 * nv * (t1 - t0));
+        for (size_t t = t0; t < t1; ++t) {
+          const std::uint32_t i = idx[t];
+          double v[5] = {m.x[i], m.y[i], m.z[i], 0, 0};
+          if (param) v[3] = m.node_u[i], v[4] = dim == 2 ? m.node_v[i] : 0;
+          std::memcpy(w, v, 8 * nv);
+          w += 8 * nv;
+        }
+        o.maybe_flush();
+      }
+    } else {
+      for (auto i : idx) o.z(m.node_tag(i)), o.nl(), o.maybe_flush();
+      for (auto i : idx) {
+        o.d(m.x[i]), o.d(m.y[i]), o.d(m.z[i]);
+        if (param) {
+          o.d(m.node_u[i]);
+          if (dim == 2) o.d(m.node_v[i]);
+        }
+        o.nl();
+        o.maybe_flush();
+      }
     }
   }
   o.txt(binary ? "\n$EndNodes\n" : "$EndNodes\n");
@@ -589,17 +665,35 @@ void write_msh(const Mesh& in, const std::filesystem::path& path, bool binary) {
   for (auto& b : m.blocks) {
     if (!b.size()) continue;
     const int type = gmsh_type(b.shape, b.order);
-    if (!type)
-      throw MeshIOError(path.string() + ": MSH has no element type for a " + shape_name(b.shape) + " of order " +
-                        std::to_string(b.order));
     o.i(b.entity_dim), o.i(b.entity_tag), o.i(type), o.z(b.size());
     o.nl();
     const int npe = b.nodes_per_element();
-    for (size_t e = 0; e < b.size(); ++e) {
-      o.z(all_tagged ? b.tags[e] : next++);
-      const std::uint32_t* nd = b.element(e);
-      for (int k = 0; k < npe; ++k) o.z(m.node_tag(nd[k]));
-      o.nl();
+    if (binary) {  // rows formatted in place, in blocks of elements
+      const bool plain = m.node_tags.empty();  // node tag = index + 1
+      for (size_t e0 = 0; e0 < b.size(); e0 += 16384) {
+        const size_t e1 = std::min(b.size(), e0 + 16384);
+        std::uint64_t* w = reinterpret_cast<std::uint64_t*>(o.grow(8 * (1 + npe) * (e1 - e0)));
+        std::uint64_t row[1 + kMaxRow];
+        for (size_t e = e0; e < e1; ++e) {
+          row[0] = all_tagged ? b.tags[e] : next++;
+          const std::uint32_t* nd = b.element(e);
+          if (plain)
+            for (int k = 0; k < npe; ++k) row[1 + k] = std::uint64_t(nd[k]) + 1;
+          else
+            for (int k = 0; k < npe; ++k) row[1 + k] = m.node_tags[nd[k]];
+          std::memcpy(w, row, 8 * (1 + npe));  // (the buffer need not be 8-byte aligned)
+          w += 1 + npe;
+        }
+        o.maybe_flush();
+      }
+    } else {
+      for (size_t e = 0; e < b.size(); ++e) {
+        o.z(all_tagged ? b.tags[e] : next++);
+        const std::uint32_t* nd = b.element(e);
+        for (int k = 0; k < npe; ++k) o.z(m.node_tag(nd[k]));
+        o.nl();
+        o.maybe_flush();
+      }
     }
   }
   o.txt(binary ? "\n$EndElements\n" : "$EndElements\n");
@@ -619,9 +713,8 @@ void write_msh(const Mesh& in, const std::filesystem::path& path, bool binary) {
     }
     o.txt(binary ? "\n$EndPeriodic\n" : "$EndPeriodic\n");
   }
-  std::ofstream f(path, std::ios::binary);
-  if (!f) throw MeshIOError(path.string() + ": cannot open the file for writing");
-  f.write(o.s.data(), static_cast<std::streamsize>(o.s.size()));
+  o.flush();
+  f.close();
   if (!f) throw MeshIOError(path.string() + ": write failed (disk full?)");
 }
 

@@ -90,12 +90,237 @@ double binom(int n, int k) {
   return r;
 }
 double bern1(int d, int a, double t) { return binom(d, a) * std::pow(t, a) * std::pow(1 - t, d - a); }
+// Chebyshev-Gauss-Lobatto abscissa q of degree d on [-1,1] (tensor directions: the 1D
+// Bernstein interpolation there is ~100x better conditioned than on equispaced points)
+double cheb_point(int q, int d) { return q == 0 ? -1.0 : q == d ? 1.0 : -std::cos(M_PI * q / d); }
+
+// ---- Sum-factorised Jacobians of tensor shapes (quad, hex: Q_P; prism: P_P(tri) x P_P(line)) ----
+// J at the (d+1)^dim (prism: triangle lattice x (d2+1)) sample points of a box (prism: triangle x
+// interval) of the reference element, by one 1D (triangle) contraction per direction instead of a
+// dense (3 npts) x nodes matrix: for a P=4 hex ~120k multiply-adds instead of 1.9M, for a P=4
+// prism ~110k instead of 535k (the dense product was what made split boundary layers slow: 15k
+// P=4 hexes cost ~10 s). Own code: the contraction order is fixed (no BLAS), so the results do not
+// depend on batching or threads. The 1D and triangle basis tables come from the exact product
+// formulas above (long double, rounded once).
+struct TensorEval {
+  Shape shape = Shape::Hex;
+  int P = 0, p1 = 0, m[3] = {1, 1, 1};
+  std::vector<double> L[3], D[3];  // per axis: m[ax] x p1, 1D Lagrange values / derivatives at the points
+  std::vector<double> LT[3], DT[3];  // the same transposed (p1 x m[ax])
+  int nt = 0, ns = 0;              // prism: triangle nodes, triangle sample points
+  std::vector<double> N, Gx, Gy;   // prism: ns x nt triangle basis values / gradients
+  std::vector<int> pos;            // Gmsh node -> position in the tensor layout
+  double lambda[3] = {0, 0, 0};    // max over points of sum_i |dN_i/dxi_c| (rounding of J's column c)
+  int npts() const { return shape == Shape::Prism ? ns * m[2] : m[0] * m[1] * m[2]; }
+};
+
+// max over rows of sum |A[row][k]| (A row-major with `cols` columns)
+double abs_rowsum(const std::vector<double>& A, int cols) {
+  double m = 0;
+  for (std::size_t r = 0; r + cols <= A.size(); r += cols) {
+    double s = 0;
+    for (int k = 0; k < cols; ++k) s += std::abs(A[r + k]);
+    m = std::max(m, s);
+  }
+  return m;
+}
+
+// The evaluator for the sample points of the domain `dom` (vertex list in the parent's reference
+// coordinates: a box for quads/hexes, triangle x interval for prisms), degrees d1 (d2: prism axis).
+TensorEval make_tensor_eval(Shape s, int P, int d1, int d2, const std::vector<Vec3>& dom) {
+  TensorEval te;
+  te.shape = s, te.P = P, te.p1 = P + 1;
+  auto axis = [&](int ax, double lo, double hi, int d) {
+    te.m[ax] = d + 1;
+    te.L[ax].resize((d + 1) * te.p1), te.D[ax].resize((d + 1) * te.p1);
+    for (int q = 0; q <= d; ++q) {
+      const double c = cheb_point(q, d);
+      const double t = lo == -1 && hi == 1 ? c : lo + (c + 1) / 2 * (hi - lo);
+      for (int i = 0; i <= P; ++i) {
+        LD Lv, dL;
+        lagrange1(P, i, t, Lv, dL);
+        te.L[ax][q * te.p1 + i] = (double)Lv, te.D[ax][q * te.p1 + i] = (double)dL;
+      }
+    }
+    te.LT[ax].resize((d + 1) * te.p1), te.DT[ax].resize((d + 1) * te.p1);
+    for (int q = 0; q <= d; ++q)
+      for (int i = 0; i <= P; ++i)
+        te.LT[ax][i * (d + 1) + q] = te.L[ax][q * te.p1 + i], te.DT[ax][i * (d + 1) + q] = te.D[ax][q * te.p1 + i];
+  };
+  const auto& lat = lattice(s, P);
+  if (s == Shape::Quad || s == Shape::Hex) {
+    const int dim = s == Shape::Hex ? 3 : 2;
+    for (int ax = 0; ax < 3; ++ax) {
+      if (ax >= dim) {  // quads: a dummy third axis of one point, value 1 (unused)
+        te.m[ax] = 1;
+        continue;
+      }
+      double lo = dom[0][ax], hi = dom[0][ax];
+      for (auto& v : dom) lo = std::min(lo, v[ax]), hi = std::max(hi, v[ax]);
+      axis(ax, lo, hi, d1);
+    }
+    for (auto& a : lat) te.pos.push_back(dim == 3 ? (a[0] * te.p1 + a[1]) * te.p1 + a[2] : a[0] * te.p1 + a[1]);
+    double sl[3] = {1, 1, 1}, sd[3] = {1, 1, 1};
+    for (int ax = 0; ax < dim; ++ax) sl[ax] = abs_rowsum(te.L[ax], te.p1), sd[ax] = abs_rowsum(te.D[ax], te.p1);
+    te.lambda[0] = sd[0] * sl[1] * sl[2];
+    te.lambda[1] = sl[0] * sd[1] * sl[2];
+    te.lambda[2] = dim == 3 ? sl[0] * sl[1] * sd[2] : 0;
+  } else {  // prism
+    te.m[0] = te.m[1] = 1;
+    axis(2, dom[0][2], dom[3][2], d2);
+    std::vector<Lattice> tri;  // distinct triangle lattice points of the nodes, first-seen order
+    for (auto& a : lat) {
+      Lattice t{a[0], a[1], 0};
+      int k = int(std::find(tri.begin(), tri.end(), t) - tri.begin());
+      if (k == (int)tri.size()) tri.push_back(t);
+      te.pos.push_back(k * te.p1 + a[2]);
+    }
+    te.nt = (int)tri.size();
+    const std::vector<Vec3> tv = {dom[0], dom[1], dom[2]};
+    for (int i = 0; i <= d1; ++i)
+      for (int j = 0; i + j <= d1; ++j) {
+        const Vec3 z = d1 ? Vec3{i / double(d1), j / double(d1), 0} : Vec3{1 / 3., 1 / 3., 0};
+        const bool canonical = dom[0][0] == 0 && dom[0][1] == 0 && dom[1][0] == 1 && dom[1][1] == 0 && dom[2][0] == 0 &&
+                               dom[2][1] == 1;
+        const Vec3 x = canonical ? z : map_linear(Shape::Tri, tv, z);
+        for (auto& a : tri) {
+          LD R0, d0, R1, dd1, R2, dd2;
+          silvester(P, P - a[0] - a[1], 1 - (LD)x[0] - (LD)x[1], R0, d0);
+          silvester(P, a[0], x[0], R1, dd1);
+          silvester(P, a[1], x[1], R2, dd2);
+          te.N.push_back((double)(R0 * R1 * R2));
+          te.Gx.push_back((double)(-d0 * R1 * R2 + R0 * dd1 * R2));
+          te.Gy.push_back((double)(-d0 * R1 * R2 + R0 * R1 * dd2));
+        }
+        ++te.ns;
+      }
+    const double sl = abs_rowsum(te.L[2], te.p1), sd = abs_rowsum(te.D[2], te.p1);
+    te.lambda[0] = abs_rowsum(te.Gx, te.nt) * sl;
+    te.lambda[1] = abs_rowsum(te.Gy, te.nt) * sl;
+    te.lambda[2] = abs_rowsum(te.N, te.nt) * sd;
+  }
+  return te;
+}
+
+// J at the sample points, planar: Jp[(3r+c)*np + p] = dx_r/dxi_c at point p (unused columns 0).
+// Column c is computed from node differences along reference direction c (x - x at the start of
+// the node line in that direction; on prisms the triangle columns from x - x at the triangle's
+// first vertex), which the derivative annihilates exactly: so the rounding of column c is
+// relative to the element's extent along c (Rc[3c+r] = largest |difference| of coordinate r), not
+// to its largest size. A 1000:1 boundary-layer element keeps a thin column accurate to ~1e-14 of
+// its own length. X: 3n node coordinates (Gmsh order).
+void tensor_jacobians(const TensorEval& te, const double* X, double* Jp, double* Rc) {
+  const int p1 = te.p1, np = te.npts();
+  std::fill(Jp, Jp + 9 * np, 0.0);
+  std::fill(Rc, Rc + 9, 0.0);
+  thread_local std::vector<double> Xt, Xa, Xb, Xc, Y, Yd, Y2, Z0, Z1, Z2;
+  const int nn = (int)te.pos.size();
+  const int nslots = te.shape == Shape::Prism ? te.nt * p1 : te.shape == Shape::Hex ? p1 * p1 * p1 : p1 * p1;
+  Xt.assign(nslots, 0.0), Xa.assign(nslots, 0.0), Xb.assign(nslots, 0.0), Xc.assign(nslots, 0.0);
+  auto amax = [](const std::vector<double>& v) {
+    double m = 0;
+    for (double x : v) m = std::max(m, std::abs(x));
+    return m;
+  };
+  for (int r = 0; r < 3; ++r) {
+    for (int i = 0; i < nn; ++i) Xt[te.pos[i]] = X[3 * i + r];
+    double* J0 = Jp + (3 * r + 0) * np;
+    double* J1 = Jp + (3 * r + 1) * np;
+    double* J2 = Jp + (3 * r + 2) * np;
+    if (te.shape == Shape::Hex) {
+      const int m0 = te.m[0], m1 = te.m[1], m2 = te.m[2];
+      for (int i = 0; i < p1; ++i)
+        for (int j = 0; j < p1; ++j)
+          for (int k = 0; k < p1; ++k) {
+            const int at = (i * p1 + j) * p1 + k;
+            Xa[at] = Xt[at] - Xt[(0 * p1 + j) * p1 + k];
+            Xb[at] = Xt[at] - Xt[(i * p1 + 0) * p1 + k];
+            Xc[at] = Xt[at] - Xt[(i * p1 + j) * p1 + 0];
+          }
+      Rc[0 + r] = amax(Xa), Rc[3 + r] = amax(Xb), Rc[6 + r] = amax(Xc);
+      // stage k: Y = L2 Xa, Y2 = L2 Xb, Yd = D2 Xc; layout (i p1 + j) m2 + c
+      Y.assign(p1 * p1 * m2, 0.0), Y2.assign(p1 * p1 * m2, 0.0), Yd.assign(p1 * p1 * m2, 0.0);
+      for (int ij = 0; ij < p1 * p1; ++ij)
+        for (int k = 0; k < p1; ++k) {
+          const double xa = Xa[ij * p1 + k], xb = Xb[ij * p1 + k], xc = Xc[ij * p1 + k];
+          const double* l = &te.LT[2][k * m2];
+          const double* d = &te.DT[2][k * m2];
+          double* y = &Y[ij * m2];
+          double* y2 = &Y2[ij * m2];
+          double* yd = &Yd[ij * m2];
+          for (int c = 0; c < m2; ++c) y[c] += l[c] * xa, y2[c] += l[c] * xb, yd[c] += d[c] * xc;
+        }
+      // stage j: Z0 = L1 Y, Z1 = D1 Y2, Z2 = L1 Yd, layout (i m1 + b) m2 + c
+      Z0.assign(p1 * m1 * m2, 0.0), Z1.assign(p1 * m1 * m2, 0.0), Z2.assign(p1 * m1 * m2, 0.0);
+      for (int i = 0; i < p1; ++i)
+        for (int b = 0; b < m1; ++b)
+          for (int j = 0; j < p1; ++j) {
+            const double wl = te.L[1][b * p1 + j], wd = te.D[1][b * p1 + j];
+            const double* y = &Y[(i * p1 + j) * m2];
+            const double* y2 = &Y2[(i * p1 + j) * m2];
+            const double* yd = &Yd[(i * p1 + j) * m2];
+            double* z0 = &Z0[(i * m1 + b) * m2];
+            double* z1 = &Z1[(i * m1 + b) * m2];
+            double* z2 = &Z2[(i * m1 + b) * m2];
+            for (int c = 0; c < m2; ++c) z0[c] += wl * y[c], z1[c] += wd * y2[c], z2[c] += wl * yd[c];
+          }
+      // stage i
+      const int q = m1 * m2;
+      for (int a = 0; a < m0; ++a)
+        for (int i = 0; i < p1; ++i) {
+          const double wl = te.L[0][a * p1 + i], wd = te.D[0][a * p1 + i];
+          const double* z0 = &Z0[i * q];
+          const double* z1 = &Z1[i * q];
+          const double* z2 = &Z2[i * q];
+          double* j0 = J0 + a * q;
+          double* j1 = J1 + a * q;
+          double* j2 = J2 + a * q;
+          for (int t = 0; t < q; ++t) j0[t] += wd * z0[t], j1[t] += wl * z1[t], j2[t] += wl * z2[t];
+        }
+    } else if (te.shape == Shape::Quad) {
+      const int m0 = te.m[0], m1 = te.m[1];
+      for (int i = 0; i < p1; ++i)
+        for (int j = 0; j < p1; ++j) Xa[i * p1 + j] = Xt[i * p1 + j] - Xt[j], Xb[i * p1 + j] = Xt[i * p1 + j] - Xt[i * p1];
+      Rc[0 + r] = amax(Xa), Rc[3 + r] = amax(Xb);
+      Y.assign(p1 * m1, 0.0), Yd.assign(p1 * m1, 0.0);
+      for (int i = 0; i < p1; ++i)
+        for (int j = 0; j < p1; ++j) {
+          const double xa = Xa[i * p1 + j], xb = Xb[i * p1 + j];
+          for (int b = 0; b < m1; ++b) Y[i * m1 + b] += te.LT[1][j * m1 + b] * xa, Yd[i * m1 + b] += te.DT[1][j * m1 + b] * xb;
+        }
+      for (int a = 0; a < m0; ++a)
+        for (int i = 0; i < p1; ++i) {
+          const double wl = te.L[0][a * p1 + i], wd = te.D[0][a * p1 + i];
+          for (int b = 0; b < m1; ++b) J0[a * m1 + b] += wd * Y[i * m1 + b], J1[a * m1 + b] += wl * Yd[i * m1 + b];
+        }
+    } else {  // prism: triangle node 0 is the element's vertex 0
+      const int m = te.m[2], nt = te.nt;
+      for (int t = 0; t < nt; ++t)
+        for (int k = 0; k < p1; ++k) Xa[t * p1 + k] = Xt[t * p1 + k] - Xt[k], Xc[t * p1 + k] = Xt[t * p1 + k] - Xt[t * p1];
+      Rc[0 + r] = Rc[3 + r] = amax(Xa), Rc[6 + r] = amax(Xc);
+      Y.assign(nt * m, 0.0), Yd.assign(nt * m, 0.0);
+      for (int t = 0; t < nt; ++t)
+        for (int k = 0; k < p1; ++k) {
+          const double xa = Xa[t * p1 + k], xc = Xc[t * p1 + k];
+          for (int c = 0; c < m; ++c) Y[t * m + c] += te.LT[2][k * m + c] * xa, Yd[t * m + c] += te.DT[2][k * m + c] * xc;
+        }
+      for (int s = 0; s < te.ns; ++s)
+        for (int t = 0; t < nt; ++t) {
+          const double gx = te.Gx[s * nt + t], gy = te.Gy[s * nt + t], n = te.N[s * nt + t];
+          const double* y = &Y[t * m];
+          const double* yd = &Yd[t * m];
+          double* j0 = J0 + s * m;
+          double* j1 = J1 + s * m;
+          double* j2 = J2 + s * m;
+          for (int c = 0; c < m; ++c) j0[c] += gx * y[c], j1[c] += gy * y[c], j2[c] += n * yd[c];
+        }
+    }
+  }
+}
+
 
 // Bernstein basis of the det J space of one shape; `lat` = multi-indices (also the lattice
 // points of the interpolation: point = index / degree).
-// Relative rounding allowance of the Bernstein coefficients: the per-direction (<= 18 term)
-// sums in up to 3 stages, the transform rounded from long double, the det J of the samples.
-constexpr double kKappa = 128 * std::numeric_limits<double>::epsilon();
 
 struct JacobianSpace {
   Shape shape;
@@ -104,9 +329,21 @@ struct JacobianSpace {
   std::vector<Lattice> lat;
   std::vector<Vec3> pts;             // canonical sample points (reference coordinates)
   Eigen::MatrixXd G;                 // (3*npts) x nnodes: dN_i/dxi_c at point p in row 3p+c
+  // Simplices of order >= 2: G = E Hs through the derivatives' own space (degree P-1, m nodes):
+  // Hs (3m x nnodes, row c m + j) = dN_i/dxi_c at node j of the order P-1 lattice, E (npts x m)
+  // = that lattice's Lagrange basis at the samples (both from product formulas in long double);
+  // for a P=4 tet 46k instead of 69k multiply-adds per element.
+  Eigen::MatrixXd Hs, E;
+  bool factored = false;
+  int jterms = 0;                    // rounded terms per J entry (the guard's n)
   Eigen::MatrixXd T;                 // lagrange values -> bezier coefficients (simplices)
   Eigen::MatrixXd Ta, Tb;            // factors: 1D (quad/hex: every axis) or triangle x line (prism)
+  std::vector<double> TaR, TaT;      // Ta row-major and transposed (quad/hex)
   bool bezier = false;               // false: sampling only (pyramids, ill-conditioned degrees)
+  double lambda[3] = {0, 0, 0};      // dense G: max over points of sum_i |G(3p+c, i)|
+  int rterms = 0;                    // terms per coefficient in the values -> Bezier transform
+  bool tensor = false;               // quad, hex, prism: J by sum factorisation (te), G unused
+  TensorEval te;
   double amplification = 0;
 
   // Bernstein coefficients of the det J values v at pts (lattice order: last index fastest).
@@ -123,20 +360,34 @@ struct JacobianSpace {
       C = Ta * V * Tb.transpose();
       return;
     }
+    // quad/hex: Ta along every axis (sum factorisation), r ascending in every sum
     const int n1 = d1 + 1;
-    std::vector<double> a(v, v + np), b(np);
-    const int naxes = dim;
-    for (int ax = 0; ax < naxes; ++ax) {  // apply Ta along axis ax (stride = n1^(naxes-1-ax))
-      int stride = 1;
-      for (int k = ax + 1; k < naxes; ++k) stride *= n1;
-      for (int base = 0; base < np; ++base) {
-        if ((base / stride) % n1 != 0) continue;
-        for (int q = 0; q < n1; ++q) {
-          double sum = 0;
-          for (int r = 0; r < n1; ++r) sum += Ta(q, r) * a[base + r * stride];
-          b[base + q * stride] = sum;
+    thread_local std::vector<double> a, b;
+    a.assign(v, v + np), b.resize(np);
+    for (int ax = 0; ax < dim; ++ax) {  // axis ax has stride n1^(dim-1-ax)
+      int st = 1;
+      for (int k = ax + 1; k < dim; ++k) st *= n1;
+      const int outer = np / (n1 * st);
+      std::fill(b.begin(), b.end(), 0.0);
+      for (int o = 0; o < outer; ++o)
+        if (st == 1) {  // last axis: vectorise over q (TaT = Ta transposed)
+          double* out = &b[o * n1];
+          const double* in = &a[o * n1];
+          for (int r = 0; r < n1; ++r) {
+            const double x = in[r];
+            const double* w = &TaT[r * n1];
+            for (int q = 0; q < n1; ++q) out[q] += w[q] * x;
+          }
+        } else {
+          for (int q = 0; q < n1; ++q) {
+            double* out = &b[(o * n1 + q) * st];
+            for (int r = 0; r < n1; ++r) {
+              const double w = TaR[q * n1 + r];
+              const double* in = &a[(o * n1 + r) * st];
+              for (int t = 0; t < st; ++t) out[t] += w * in[t];
+            }
+          }
         }
-      }
       std::swap(a, b);
     }
     std::copy(a.begin(), a.end(), c);
@@ -144,9 +395,7 @@ struct JacobianSpace {
   std::vector<std::vector<Vec3>> children;  // canonical subdivision (vertex lists)
   double ref_volume = 1;
 
-  // Chebyshev-Gauss-Lobatto abscissa q of degree d on [-1,1] (tensor directions: the 1D
-  // Bernstein interpolation there is ~100x better conditioned than on equispaced points)
-  static double cheb(int q, int d) { return q == 0 ? -1.0 : q == d ? 1.0 : -std::cos(M_PI * q / d); }
+  static double cheb(int q, int d) { return cheb_point(q, d); }
   Vec3 point(const Lattice& a) const {
     switch (shape) {
       case Shape::Tri: return d1 ? Vec3{a[0] / double(d1), a[1] / double(d1), 0} : Vec3{1 / 3., 1 / 3., 0};
@@ -232,10 +481,12 @@ struct JacobianSpace {
     for (auto& a : lat) pts.push_back(point(a));
     const LagrangeBasis& b = LagrangeBasis::get(s, p);
     const int n = b.size(), np = (int)pts.size();
-    G.resize(3 * np, n);
+    tensor = s == Shape::Quad || s == Shape::Hex || s == Shape::Prism;
+    if (tensor) te = make_tensor_eval(s, p, d1, d2, reference_nodes(s, 1));
+    G.resize(tensor ? 0 : 3 * np, n);
     std::vector<double> dN(3 * n);
     std::vector<LD> dNl(3 * n);
-    for (int q = 0; q < np; ++q) {
+    for (int q = 0; q < (tensor ? 0 : np); ++q) {
       if (exact_grad_supported(s)) {
         exact_grad(s, p, pts[q], dNl.data());
         for (int k = 0; k < 3 * n; ++k) dN[k] = (double)dNl[k];
@@ -244,6 +495,50 @@ struct JacobianSpace {
       }
       for (int c = 0; c < 3; ++c)
         for (int i = 0; i < n; ++i) G(3 * q + c, i) = dN[3 * i + c];
+    }
+    for (int q = 0; q < (tensor ? 0 : np); ++q)
+      for (int c = 0; c < 3; ++c) {
+        double a = 0;
+        for (int i = 0; i < n; ++i) a += std::abs(G(3 * q + c, i));
+        lambda[c] = std::max(lambda[c], a);
+      }
+    if (tensor) std::copy(te.lambda, te.lambda + 3, lambda);
+    jterms = n;
+    if ((s == Shape::Tri || s == Shape::Tet) && p >= 2) {
+      const int dd = p - 1;
+      const auto& dl = lattice(s, dd);
+      const auto& dp = reference_nodes(s, dd);
+      const int m = (int)dl.size();
+      Hs.resize(3 * m, n);
+      for (int j = 0; j < m; ++j) {
+        exact_grad(s, p, dp[j], dNl.data());
+        for (int c = 0; c < 3; ++c)
+          for (int i = 0; i < n; ++i) Hs(c * m + j, i) = (double)dNl[3 * i + c];
+      }
+      E.resize(np, m);
+      const bool tet = s == Shape::Tet;
+      for (int q = 0; q < np; ++q) {
+        const LD x = (LD)lat[q][0] / d1, y = (LD)lat[q][1] / d1, z = tet ? (LD)lat[q][2] / d1 : 0;
+        for (int j = 0; j < m; ++j) {
+          const Lattice& a = dl[j];
+          LD R0, R1, R2, R3 = 1, dummy;
+          silvester(dd, dd - a[0] - a[1] - (tet ? a[2] : 0), 1 - x - y - z, R0, dummy);
+          silvester(dd, a[0], x, R1, dummy);
+          silvester(dd, a[1], y, R2, dummy);
+          if (tet) silvester(dd, a[2], z, R3, dummy);
+          E(q, j) = (double)(R0 * R1 * R2 * R3);
+        }
+      }
+      factored = true;
+      jterms = n + m;
+      for (int c = 0; c < 3; ++c) {  // abs sums of the two-stage computation
+        lambda[c] = 0;
+        for (int q = 0; q < np; ++q) {
+          double a = 0;
+          for (int j = 0; j < m; ++j) a += std::abs(E(q, j)) * Hs.block(c * m + j, 0, 1, n).cwiseAbs().sum();
+          lambda[c] = std::max(lambda[c], a);
+        }
+      }
     }
     if (!lat.empty()) {
       // Lagrange -> Bernstein: dense on simplices, factorised (Kronecker) on tensor shapes.
@@ -291,19 +586,28 @@ struct JacobianSpace {
         Tb = inv1(d2);
       } else {
         Ta = inv1(d1);
+        for (int q = 0; q <= d1; ++q)
+          for (int r = 0; r <= d1; ++r) TaR.push_back(Ta(q, r));
+        for (int r = 0; r <= d1; ++r)
+          for (int q = 0; q <= d1; ++q) TaT.push_back(Ta(q, r));
       }
       // Values -> Bernstein is ill-conditioned at high degree: the amplification is the
       // infinity norm of the transform (a product of the factors' norms on tensor shapes).
-      // A coefficient is trusted positive only above the rounding bound
-      // kKappa * amplification * (max over samples of the Hadamard bound of det J), see
-      // classify(); where that bound would exceed 14% of det J's scale the transform cannot
-      // certify anything useful: hexahedra of order >= 6, proven by Bernstein arithmetic
-      // instead (hex_bezier_validity); pyramids are always sampled.
+      // A coefficient is trusted positive only above the rounding bound of coefficient_guard
+      // (amplification x the rounding of the samples, scaled per element and per direction);
+      // where that bound would exceed 14% of det J's scale the transform cannot certify
+      // anything useful: hexahedra of order >= 5, proven by Bernstein arithmetic instead
+      // (hex_bezier_validity), prisms of order >= 6 (sampled); pyramids are always sampled.
       auto rowsum = [](const Eigen::MatrixXd& A) { return A.cwiseAbs().rowwise().sum().maxCoeff(); };
       amplification = T.size() ? rowsum(T)
                       : s == Shape::Prism ? rowsum(Ta) * rowsum(Tb)
                                           : std::pow(rowsum(Ta), dim);
-      bezier = amplification * kKappa < 0.14;
+      rterms = T.size() ? np : s == Shape::Prism ? (int)Ta.cols() + d2 + 1 : dim * (d1 + 1);
+      // Feasible when the guard of coefficient_guard stays below 14% of det J's scale for an
+      // element whose extents are ~2x its Jacobian columns (R_c ~ 2 N_c, any aspect ratio).
+      constexpr double u = std::numeric_limits<double>::epsilon() / 2;
+      const double lmax = std::max({lambda[0], lambda[1], lambda[2]});
+      bezier = amplification * ((rterms + 34) * u + 1.01 * (jterms + 6) * u * lmax * 2) < 0.14;
     }
     // canonical children as vertex lists in reference coordinates
     auto mid = [](Vec3 a, Vec3 b) { return Vec3{(a[0] + b[0]) / 2, (a[1] + b[1]) / 2, (a[2] + b[2]) / 2}; };
@@ -353,14 +657,69 @@ const JacobianSpace& space(Shape s, int p) {
   return *slot;
 }
 
-double det_at(int dim, const double J[9], const double* normal) { return jacobian_determinant(dim, J, normal); }
-// Hadamard bound of |det J| (product of the column lengths): the scale of det J's rounding.
-double hadamard(int dim, const double J[9]) {
-  double h = 1;
-  for (int c = 0; c < dim; ++c) h *= std::sqrt(J[c] * J[c] + J[3 + c] * J[3 + c] + J[6 + c] * J[6 + c]);
-  return h;
+// det J (jacobian_determinant's formulas, same rounding) and the largest squared Hadamard bound
+// at np points from planar J: Jp[(3r+c)*np + p]. Loops over points vectorise.
+void planar_det(int dim, const double* Jp, int np, const double* normal, double* V, double& h2max, double cmax2[3]) {
+  auto J = [&](int k) { return Jp + k * np; };
+  const double *j0 = J(0), *j1 = J(1), *j2 = J(2), *j3 = J(3), *j4 = J(4), *j5 = J(5), *j6 = J(6), *j7 = J(7), *j8 = J(8);
+  double hm = 0, c0 = 0, c1 = 0, c2 = 0;
+  if (dim == 3) {
+    for (int p = 0; p < np; ++p) {
+      V[p] = j0[p] * (j4[p] * j8[p] - j5[p] * j7[p]) - j1[p] * (j3[p] * j8[p] - j5[p] * j6[p]) +
+             j2[p] * (j3[p] * j7[p] - j4[p] * j6[p]);
+      const double a = j0[p] * j0[p] + j3[p] * j3[p] + j6[p] * j6[p], b = j1[p] * j1[p] + j4[p] * j4[p] + j7[p] * j7[p],
+                   c = j2[p] * j2[p] + j5[p] * j5[p] + j8[p] * j8[p], h = a * b * c;
+      hm = h > hm ? h : hm;
+      c0 = a > c0 ? a : c0, c1 = b > c1 ? b : c1, c2 = c > c2 ? c : c2;
+    }
+  } else {
+    const double n0 = normal[0], n1 = normal[1], n2 = normal[2];
+    for (int p = 0; p < np; ++p) {
+      const double cx = j3[p] * j7[p] - j6[p] * j4[p], cy = j6[p] * j1[p] - j0[p] * j7[p], cz = j0[p] * j4[p] - j3[p] * j1[p];
+      V[p] = cx * n0 + cy * n1 + cz * n2;
+      const double a = j0[p] * j0[p] + j3[p] * j3[p] + j6[p] * j6[p], b = j1[p] * j1[p] + j4[p] * j4[p] + j7[p] * j7[p],
+                   h = a * b;
+      hm = h > hm ? h : hm;
+      c0 = a > c0 ? a : c0, c1 = b > c1 ? b : c1;
+    }
+  }
+  h2max = std::max(h2max, hm);
+  cmax2[0] = std::max(cmax2[0], c0), cmax2[1] = std::max(cmax2[1], c1), cmax2[2] = std::max(cmax2[2], c2);
 }
 
+// Rounding bound of the Bezier coefficients of det J on one (sub-)domain, scaled per element:
+//   amplification * ( (rterms + 2) u max|v|      the values -> Bezier transform (and its entries)
+//                   + 32 u href                    det J's formula (<= 5 roundings of a sum bounded by
+//                                                  the permanent of |J| <= 3^1.5 x Hadamard bound href)
+//                   + prod_c (N_c + e_c) - prod_c N_c )   J's own rounding
+// with N_c the largest length of J's column c over the samples and e_c = (n + 6) u lambda_c R_c
+// the rounding of column c (sums of <= n + 4 rounded products of node differences bounded by
+// R_c, with basis derivative weights whose absolute sum is <= lambda_c; u = eps/2). On tensor
+// shapes R_c is the element's extent along reference direction c (see tensor_jacobians), on
+// simplices the largest offset from node 0. The guard used before (128 eps x Hadamard bound)
+// assumed column roundings relative to their own lengths: false for thin elements, whose thin
+// column is a difference of coordinates of the element's long size unless computed from
+// differences along that direction.
+double coefficient_guard(const JacobianSpace& sp, int nnodes, double vmax, double h2max, const double cmax2[3],
+                         const double lambda[3], const double Rc[9]) {
+  constexpr double u = std::numeric_limits<double>::epsilon() / 2;  // unit roundoff
+  double with = 1, without = 1;
+  for (int c = 0; c < sp.dim; ++c) {
+    const double R = std::sqrt(Rc[3 * c] * Rc[3 * c] + Rc[3 * c + 1] * Rc[3 * c + 1] + Rc[3 * c + 2] * Rc[3 * c + 2]);
+    const double N = std::sqrt(cmax2[c]) * (1 + 4 * u), e = 1.01 * (nnodes + 6) * u * lambda[c] * R;
+    with *= N + e, without *= N;
+  }
+  const double g = 1.01 * (sp.rterms + 2) * u * vmax + 32 * u * std::sqrt(h2max) + (with - without) * (1 + 8 * u);
+  return sp.amplification * g * (1 + 8 * u);
+}
+// Offsets of the nodes from node 0 (the rounding scale of a dense J: every column gets it).
+void dense_offsets(int nnodes, const double* X, double Rc[9]) {
+  for (int r = 0; r < 3; ++r) {
+    double m = 0;
+    for (int i = 0; i < nnodes; ++i) m = std::max(m, std::abs(X[3 * i + r] - X[r]));
+    Rc[r] = Rc[3 + r] = Rc[6 + r] = m * (1 + 1e-15);
+  }
+}
 void straight_normal(Shape s, const double* X, double n[3]) {
   auto P = [&](int i, int r) { return X[3 * i + r]; };
   double a[3], b[3];
@@ -401,38 +760,54 @@ void refine(const JacobianSpace& sp, const double* X, const double* normal, Elem
   const int max_depth = 6, max_domains = 600;
   int visited = 0;
   Eigen::VectorXd v(np);
+  std::vector<double> Jp;
   while (!todo.empty()) {
     auto [dom, depth] = std::move(todo.front());
     todo.pop_front();
-    double href = 0;
+    double lam[3] = {0, 0, 0}, Rc[9];
     if (++visited > max_domains) {
       q.inconclusive = true;
       return;
     }
-    for (int p = 0; p < np; ++p) {
-      Vec3 xi = map_linear(sp.shape, dom, sp.pts[p]);
-      if (exact) {
-        exact_grad(sp.shape, sp.order, xi, dNl.data());
-        for (int k = 0; k < 3 * n; ++k) dN[k] = (double)dNl[k];
-      } else {
-        b.grad(xi, dN.data());
+    Jp.resize(9 * np);
+    if (sp.tensor) {  // sum factorisation on the sub-domain (a box, or triangle x interval)
+      const TensorEval te = make_tensor_eval(sp.shape, sp.order, sp.d1, sp.d2, dom);
+      tensor_jacobians(te, X, Jp.data(), Rc);
+      std::copy(te.lambda, te.lambda + 3, lam);
+    } else {
+      dense_offsets(n, X, Rc);
+      for (int p = 0; p < np; ++p) {
+        Vec3 xi = map_linear(sp.shape, dom, sp.pts[p]);
+        if (exact) {
+          exact_grad(sp.shape, sp.order, xi, dNl.data());
+          for (int k = 0; k < 3 * n; ++k) dN[k] = (double)dNl[k];
+        } else {
+          b.grad(xi, dN.data());
+        }
+        double J[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
+        for (int i = 0; i < n; ++i)
+          for (int r = 0; r < 3; ++r)
+            for (int c = 0; c < 3; ++c) J[3 * r + c] += (X[3 * i + r] - X[r]) * dN[3 * i + c];
+        for (int k = 0; k < 9; ++k) Jp[k * np + p] = J[k];
+        for (int c = 0; c < 3; ++c) {
+          double a = 0;
+          for (int i = 0; i < n; ++i) a += std::abs(dN[3 * i + c]);
+          lam[c] = std::max(lam[c], a);
+        }
       }
-      double J[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
-      for (int i = 0; i < n; ++i)
-        for (int r = 0; r < 3; ++r)
-          for (int c = 0; c < 3; ++c) J[3 * r + c] += X[3 * i + r] * dN[3 * i + c];
-      v[p] = det_at(sp.dim, J, normal);
-      href = std::max(href, hadamard(sp.dim, J));
-      q.min_det = std::min(q.min_det, v[p]);
-      q.max_det = std::max(q.max_det, v[p]);
     }
+    double h2 = 0, cm[3] = {0, 0, 0};
+    planar_det(sp.dim, Jp.data(), np, normal, v.data(), h2, cm);
+    const double guard = coefficient_guard(sp, n, v.cwiseAbs().maxCoeff(), h2, cm, lam, Rc);
+    q.min_det = std::min(q.min_det, v.minCoeff());
+    q.max_det = std::max(q.max_det, v.maxCoeff());
     if (v.minCoeff() <= 0) {
       q.valid = false;
       return;
     }
     Eigen::VectorXd c(np);
     sp.to_bezier(v.data(), c.data());
-    if (c.minCoeff() > kKappa * sp.amplification * href) continue;
+    if (c.minCoeff() > guard) continue;
     if (depth >= max_depth) {
       q.inconclusive = true;
       continue;
@@ -534,42 +909,69 @@ void hex_det_bezier(int P, const double* X, Tensor& det, double& err) {
     }
     L2B = cache[P];
   }
+  // Control points of node differences along each direction c (x - x at the start of the node
+  // line along c: d/dxi_c annihilates it exactly), so the rounding of column c of J is relative
+  // to the element's extent along c (thin boundary-layer hexes), not to its largest size or its
+  // distance from the origin.
   const auto& lat = lattice(Shape::Hex, P);
-  Tensor B[3];
-  for (int r = 0; r < 3; ++r) {
-    Tensor V(P, P, P);
-    for (std::size_t i = 0; i < lat.size(); ++i) V.at(lat[i][0], lat[i][1], lat[i][2]) = X[3 * i + r];
-    for (int ax = 0; ax < 3; ++ax) {  // apply L2B along each axis
-      Tensor W(P, P, P);
+  double l2b_norm = 0;  // infinity norm of the 1D transform
+  for (int a = 0; a <= P; ++a) {
+    double sa = 0;
+    for (int q = 0; q <= P; ++q) sa += std::abs(L2B[a * (P + 1) + q]);
+    l2b_norm = std::max(l2b_norm, sa);
+  }
+  constexpr double u = std::numeric_limits<double>::epsilon() / 2;
+  Tensor D[3][3], DE[3][3];  // D[r][c] = d x_r / d xi_c; DE: |D| + its rounding bound
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) {
+      Tensor V(P, P, P);
+      for (std::size_t i = 0; i < lat.size(); ++i) V.at(lat[i][0], lat[i][1], lat[i][2]) = X[3 * i + r];
+      Tensor Vd(P, P, P);
+      double R = 0;
       for (int i = 0; i <= P; ++i)
         for (int j = 0; j <= P; ++j)
           for (int k = 0; k <= P; ++k) {
-            double s = 0;
-            for (int q = 0; q <= P; ++q) {
-              const int a[3] = {ax == 0 ? q : i, ax == 1 ? q : j, ax == 2 ? q : k};
-              s += L2B[(ax == 0 ? i : ax == 1 ? j : k) * (P + 1) + q] * V.at(a[0], a[1], a[2]);
-            }
-            W.at(i, j, k) = s;
+            Vd.at(i, j, k) = V.at(i, j, k) - V.at(c == 0 ? 0 : i, c == 1 ? 0 : j, c == 2 ? 0 : k);
+            R = std::max(R, std::abs(Vd.at(i, j, k)));
           }
-      V = W;
-    }
-    B[r] = V;
-  }
-  // derivatives (d/dxi = P/2 * forward differences), in scaled form
-  Tensor D[3][3];  // D[r][c] = d x_r / d xi_c
-  for (int r = 0; r < 3; ++r)
-    for (int c = 0; c < 3; ++c) {
-      Tensor T(c == 0 ? P - 1 : P, c == 1 ? P - 1 : P, c == 2 ? P - 1 : P);
+      Tensor Va = absval(Vd);
+      for (int ax = 0; ax < 3; ++ax) {  // apply L2B along each axis (and |L2B| to |Vd|: rounding bound)
+        Tensor W(P, P, P), Wa(P, P, P);
+        for (int i = 0; i <= P; ++i)
+          for (int j = 0; j <= P; ++j)
+            for (int k = 0; k <= P; ++k) {
+              double sum = 0, suma = 0;
+              for (int q = 0; q <= P; ++q) {
+                const int a[3] = {ax == 0 ? q : i, ax == 1 ? q : j, ax == 2 ? q : k};
+                const double w = L2B[(ax == 0 ? i : ax == 1 ? j : k) * (P + 1) + q];
+                sum += w * Vd.at(a[0], a[1], a[2]);
+                suma += std::abs(w) * Va.at(a[0], a[1], a[2]);
+              }
+              W.at(i, j, k) = sum, Wa.at(i, j, k) = suma;
+            }
+        Vd = W, Va = Wa;
+      }
+      // control point rounding <= gamma_{3(P+2)+3} (|L2B| x |differences|) (the transform's
+      // entries rounded once from long double included); a derivative coefficient is P/2 times
+      // a difference of two
+      const double g = 1.01 * (3 * (P + 2) + 3) * u;
+      Tensor T(c == 0 ? P - 1 : P, c == 1 ? P - 1 : P, c == 2 ? P - 1 : P), TE = T;
       for (int i = 0; i <= T.n[0]; ++i)
         for (int j = 0; j <= T.n[1]; ++j)
-          for (int k = 0; k <= T.n[2]; ++k)
-            T.at(i, j, k) = 0.5 * P * (B[r].at(i + (c == 0), j + (c == 1), k + (c == 2)) - B[r].at(i, j, k));
+          for (int k = 0; k <= T.n[2]; ++k) {
+            const int i1 = i + (c == 0), j1 = j + (c == 1), k1 = k + (c == 2);
+            T.at(i, j, k) = 0.5 * P * (Vd.at(i1, j1, k1) - Vd.at(i, j, k));
+            const double e = 0.5 * P * g * (Va.at(i1, j1, k1) + Va.at(i, j, k)) * (1 + 4 * u) + 2 * u * std::abs(T.at(i, j, k));
+            TE.at(i, j, k) = std::abs(T.at(i, j, k)) + e;
+          }
       scale_binomial(T, false);
+      scale_binomial(TE, false);
       D[r][c] = T;
+      DE[r][c] = TE;
     }
   // det = x_xi (y_eta z_zeta - y_zeta z_eta) + x_eta (y_zeta z_xi - y_xi z_zeta) + x_zeta (y_xi z_eta - y_eta z_xi)
   det = Tensor(3 * P - 1, 3 * P - 1, 3 * P - 1);
-  Tensor bound = det;
+  Tensor bound = det, bounde = det;
   const int perm[3][3] = {{0, 1, 2}, {1, 2, 0}, {2, 0, 1}};  // (c0 ; c1, c2) of each term
   for (auto& pc : perm) {
     const int c0 = pc[0], c1 = pc[1], c2 = pc[2];
@@ -577,15 +979,26 @@ void hex_det_bezier(int P, const double* X, Tensor& det, double& err) {
     axpy(cof, -1, convolve(D[1][c2], D[2][c1]));
     Tensor cofa = convolve(absval(D[1][c1]), absval(D[2][c2]));
     axpy(cofa, 1, convolve(absval(D[1][c2]), absval(D[2][c1])));
+    Tensor cofe = convolve(DE[1][c1], DE[2][c2]);
+    axpy(cofe, 1, convolve(DE[1][c2], DE[2][c1]));
     axpy(det, 1, convolve(D[0][c0], cof));
     axpy(bound, 1, convolve(absval(D[0][c0]), cofa));
+    axpy(bounde, 1, convolve(DE[0][c0], cofe));
   }
   scale_binomial(det, true);
   scale_binomial(bound, true);
-  double bmax = 0;
-  for (double b : bound.c) bmax = std::max(bmax, b);
-  // products/sums of <= (P+1)^3 terms per coefficient, the control points' own rounding
-  err = bmax * 1e-11;
+  scale_binomial(bounde, true);
+  double bmax = 0, emax = 0;
+  for (std::size_t i = 0; i < bound.c.size(); ++i)
+    bmax = std::max(bmax, bounde.c[i]), emax = std::max(emax, bounde.c[i] - bound.c[i]);
+  // Rounding of the products and sums (each det coefficient: <= 6 (P+1)^6 rounded terms in
+  // <= 2 (P+1)^3 + 8 sequential operations, binomial scalings; `bound` is the same computation on
+  // absolute values, `bounde` on |D| + its rounding bound) plus the propagated rounding of the
+  // derivative coefficients: products of scaled coefficients have positive weights, so a
+  // coefficient of det moves by at most bounde - bound (multilinearity); de Casteljau splits
+  // (<= 3 x 6 levels of 3P-1 averaging steps) add their own rounding.
+  const double K = 2.0 * std::pow(P + 1, 3) + 16 + 18.0 * (3 * P - 1);
+  err = (1.01 * K * u * bmax + emax) * (1 + 8 * u);
 }
 // Proves validity of a hex by its det J coefficients, subdividing (de Casteljau) up to depth 6.
 void hex_bezier_validity(int P, const double* X, ElementQuality& q) {
@@ -628,7 +1041,7 @@ void hex_bezier_validity(int P, const double* X, ElementQuality& q) {
 }
 
 void classify(const JacobianSpace& sp, const double* X, const double* normal, const double* vals,
-              const double* coef, double href, ElementQuality& q) {
+              const double* coef, double guard, ElementQuality& q) {
   const int np = (int)sp.pts.size();
   q.min_det = *std::min_element(vals, vals + np);
   q.max_det = *std::max_element(vals, vals + np);
@@ -642,7 +1055,7 @@ void classify(const JacobianSpace& sp, const double* X, const double* normal, co
     q.valid = q.min_det > 0;
   } else if (q.min_det <= 0) {
     q.valid = false;
-  } else if (*std::min_element(coef, coef + np) > kKappa * sp.amplification * href) {
+  } else if (*std::min_element(coef, coef + np) > guard) {
     q.valid = true;
   } else {
     refine(sp, X, normal, q);
@@ -655,19 +1068,40 @@ void classify(const JacobianSpace& sp, const double* X, const double* normal, co
 void evaluate_chunk(const JacobianSpace& sp, const Eigen::MatrixXd& X, int count, const double* normals,
                     const std::vector<const double*>& xyz, ElementQuality* out) {
   const int np = (int)sp.pts.size();
-  Eigen::MatrixXd GX = sp.G * X;  // (3np) x (3count)
   Eigen::MatrixXd V(np, count);
-  double H[64];
+  thread_local std::vector<double> H;
+  H.resize(count);
+  thread_local std::vector<double> Jp;
+  Jp.resize(9 * np);
+  Eigen::MatrixXd GX, GXc[3];
+  if (sp.factored) {
+    const int m = (int)sp.E.cols();
+    const Eigen::MatrixXd HX = sp.Hs * X;  // (3m) x (3count)
+    for (int c = 0; c < sp.dim; ++c) GXc[c].noalias() = sp.E * HX.middleRows(c * m, m);  // np x (3count)
+  } else if (!sp.tensor) {
+    GX.noalias() = sp.G * X;  // (3np) x (3count)
+  }
   for (int e = 0; e < count; ++e) {
-    double h = 0;
-    for (int p = 0; p < np; ++p) {
-      double J[9];
+    double Rc[9];
+    if (sp.tensor) {
+      tensor_jacobians(sp.te, xyz[e], Jp.data(), Rc);
+    } else {
+      dense_offsets(num_nodes(sp.shape, sp.order), xyz[e], Rc);
       for (int r = 0; r < 3; ++r)
-        for (int c = 0; c < 3; ++c) J[3 * r + c] = GX(3 * p + c, 3 * e + r);
-      V(p, e) = det_at(sp.dim, J, normals + 3 * e);
-      h = std::max(h, hadamard(sp.dim, J));
+        for (int c = 0; c < 3; ++c) {
+          double* jp = &Jp[(3 * r + c) * np];
+          if (sp.factored) {
+            if (c < sp.dim) std::copy(GXc[c].col(3 * e + r).data(), GXc[c].col(3 * e + r).data() + np, jp);
+            else std::fill(jp, jp + np, 0.0);
+          } else {
+            for (int p = 0; p < np; ++p) jp[p] = GX(3 * p + c, 3 * e + r);
+          }
+        }
     }
-    H[e] = h;
+    double h2 = 0, cm[3] = {0, 0, 0};
+    planar_det(sp.dim, Jp.data(), np, normals + 3 * e, V.col(e).data(), h2, cm);
+    const double vmax = V.col(e).cwiseAbs().maxCoeff();
+    H[e] = coefficient_guard(sp, sp.jterms, vmax, h2, cm, sp.lambda, Rc);
   }
   Eigen::MatrixXd C(np, count);
   if (sp.T.size())
@@ -698,7 +1132,7 @@ ElementQuality element_quality(Shape s, int order, const double* X, const double
   }
   Eigen::MatrixXd M(n, 3);
   for (int i = 0; i < n; ++i)
-    for (int r = 0; r < 3; ++r) M(i, r) = X[3 * i + r];
+    for (int r = 0; r < 3; ++r) M(i, r) = X[3 * i + r] - X[r];
   std::vector<const double*> xyz = {X};
   evaluate_chunk(sp, M, 1, nrm, xyz, &q);
   return q;
@@ -718,7 +1152,7 @@ std::vector<std::vector<ElementQuality>> mesh_quality(const Mesh& m, int threads
       res[bi].resize(b.size());
       const JacobianSpace& sp = space(b.shape, b.order);
       const int n = b.nodes_per_element();
-      constexpr int kChunk = 32;
+      constexpr int kChunk = 32;  // dense shapes: G X and T V of a chunk stay in L2 (64 and more: 2.5x slower)
       const size_t nchunks = (b.size() + kChunk - 1) / kChunk;
       tbb::parallel_for(tbb::blocked_range<size_t>(0, nchunks), [&](const tbb::blocked_range<size_t>& r) {
         Eigen::MatrixXd X(n, 3 * kChunk);
@@ -736,7 +1170,7 @@ std::vector<std::vector<ElementQuality>> mesh_quality(const Mesh& m, int threads
               P[3 * i] = m.x[nodes[i]];
               P[3 * i + 1] = m.y[nodes[i]];
               P[3 * i + 2] = m.z[nodes[i]];
-              for (int rr = 0; rr < 3; ++rr) X(i, 3 * e + rr) = P[3 * i + rr];
+              for (int rr = 0; rr < 3; ++rr) X(i, 3 * e + rr) = P[3 * i + rr] - P[rr];
             }
             xyz[e] = P;
             if (dim == 2) {

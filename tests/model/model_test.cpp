@@ -10,6 +10,8 @@
 
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -249,10 +251,12 @@ TEST_CASE("mesh check names bad node indices and non-finite coordinates") {
   CHECK_THROWS_WITH_AS(m.check(), doctest::Contains("non-finite"), std::invalid_argument);
 }
 
-TEST_CASE("high orders: Bezier validity is proven (not sampled) up to P=6, and sound") {
+TEST_CASE("high orders: Bezier validity is proven (not sampled) up to P=6 (prisms to P=5), and sound") {
   // Randomly perturbed elements: an element we call valid with a proof (not sampled, not
   // inconclusive) must have det J > 0 at every point of a fine lattice; one we call invalid
   // has a sample with det J <= 0 (checked the same way); both verdicts must occur.
+  // Prisms of order 6: the values -> Bezier transform amplifies the samples' rounding ~2e11x,
+  // beyond what a rigorous rounding bound allows (see quality.hpp): reported as sampled.
   std::mt19937 rng(7);
   std::uniform_real_distribution<double> U(-1, 1);
   for (Shape s : {Shape::Tet, Shape::Prism, Shape::Hex})
@@ -265,7 +269,8 @@ TEST_CASE("high orders: Bezier validity is proven (not sampled) up to P=6, and s
         for (size_t i = 0; i < X.size(); ++i) X[i] += amp * U(rng) / p;
         auto q = element_quality(s, p, X.data());
         INFO(std::string(shape_name(s)) << " P=" << p << " trial " << trial);
-        CHECK_FALSE(q.sampled);
+        const bool unprovable = s == Shape::Prism && p == 6;
+        CHECK(q.sampled == unprovable);
         const int F = s == Shape::Hex ? 7 : 10;
         double mn = 1e300, J[9];
         for (int i = 0; i <= F; ++i)
@@ -294,7 +299,98 @@ TEST_CASE("high orders: Bezier validity is proven (not sampled) up to P=6, and s
         CHECK_FALSE(q.inconclusive);
       }
       INFO(std::string(shape_name(s)) << " P=" << p << ": proven " << proven << ", invalid " << invalid);
-      CHECK(proven > 0);
+      CHECK((proven > 0) == !(s == Shape::Prism && p == 6));
       CHECK(invalid > 0);
     }
+}
+
+TEST_CASE("thin boundary layers: 10 split P=4 layers of aspect ratio > 1000 are judged quickly and correctly") {
+  // A curved P=4 macro prism (and hex) on a bent slab of thickness 0.2 is split into 10 layers
+  // (geometric ratio 1.7 from the wall: first layer ~7e-4 thick, edges 1 to 1.4 long) by mapping
+  // sub-elements through the macro element (what the split stage does). Every layer is valid
+  // and must be proven so (not sampled, not inconclusive); a copy of the thinnest layer with an
+  // interior node pushed 3 thicknesses across the layer is invalid (checked against a fine
+  // lattice of det J samples), one pushed by 5% of a thickness stays proven valid.
+  const int P = 4, L = 10;
+  const double T = 0.2, ratio = 1.7;
+  auto slab = [&](const Vec3& r, Shape s) {  // reference point -> bent slab
+    const double xi = s == Shape::Hex ? (r[0] + 1) / 2 : r[0], eta = s == Shape::Hex ? (r[1] + 1) / 2 : r[1];
+    const double u = xi + 0.1 * eta * eta, v = eta + 0.05 * xi * eta, w = T * (r[2] + 1) / 2;
+    return Vec3{u, (3 + w) * std::sin(v / 3), (3 + w) * std::cos(v / 3) - 3};
+  };
+  std::vector<double> cuts = {-1};
+  for (int k = 1; k <= L; ++k) cuts.push_back(-1 + 2 * (std::pow(ratio, k) - 1) / (std::pow(ratio, L) - 1));
+  cuts.back() = 1;
+  for (Shape s : {Shape::Prism, Shape::Hex}) {
+    INFO(std::string(shape_name(s)));
+    std::vector<double> macro;
+    for (auto& r : reference_nodes(s, P))
+      for (double c : slab(r, s)) macro.push_back(c);
+    REQUIRE(element_quality(s, P, macro.data()).valid);
+    const auto& rv = reference_nodes(s, 1);
+    Mesh m;
+    m.add_physical(3, 1, "fluid");
+    m.add_entity(3, 1, {1});
+    std::vector<std::vector<double>> layers;
+    for (int k = 0; k < L; ++k) {
+      std::vector<Vec3> verts;
+      for (auto v : rv) verts.push_back({v[0], v[1], v[2] < 0 ? cuts[k] : cuts[k + 1]});
+      layers.push_back(map_sub_element(s, P, macro.data(), s, P, verts));
+      std::vector<std::uint32_t> ids;
+      for (size_t i = 0; i < layers.back().size(); i += 3)
+        ids.push_back(m.add_node(layers.back()[i], layers.back()[i + 1], layers.back()[i + 2]));
+      m.block(s, P, 3, 1).add(ids.data());
+    }
+    const auto t0 = std::chrono::steady_clock::now();
+    int proven = 0;
+    for (auto& X : layers) {
+      auto q = element_quality(s, P, X.data());
+      proven += q.valid && !q.sampled && !q.inconclusive;
+    }
+    auto st = mesh_stats(m, 1);
+    const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    CHECK(proven == L);
+    CHECK(st["invalid"] == 0);
+    CHECK(st["inconclusive"] == 0);
+    CHECK(st["max_aspect_ratio"].get<double>() > 1000);
+    CHECK_MESSAGE(secs < 2.0, "20 thin P=4 elements took " << secs << " s");
+    MESSAGE(std::string(shape_name(s)) << ": max aspect ratio " << st["max_aspect_ratio"].get<double>() << ", min scaled Jacobian " << st["min_scaled_jacobian"].get<double>() << ", judged in " << secs << " s");
+    // the thinnest layer with an interior node pushed across it
+    const auto& lat = lattice(s, P);
+    const Lattice target = s == Shape::Hex ? Lattice{2, 2, 2} : Lattice{1, 1, 2};
+    const int node = int(std::find(lat.begin(), lat.end(), target) - lat.begin());
+    REQUIRE(node < (int)lat.size());
+    const double h = T * (cuts[1] + 1) / 2;  // first layer thickness
+    const LagrangeBasis& b = LagrangeBasis::get(s, P);
+    for (double push : {-3.0, 0.05}) {
+      auto X = layers[0];
+      // the layer direction at that node: d x / d zeta, normalised
+      double J[9];
+      jacobian(b, X.data(), reference_nodes(s, P)[node], J);
+      const double n = std::sqrt(J[2] * J[2] + J[5] * J[5] + J[8] * J[8]);
+      for (int r = 0; r < 3; ++r) X[3 * node + r] += push * h * J[3 * r + 2] / n;
+      double mn = 1e300;
+      const int F = 24;
+      for (int i = 0; i <= F; ++i)
+        for (int j = 0; j <= F; ++j)
+          for (int k = 0; k <= F; ++k) {
+            if (s == Shape::Prism && i + j > F) continue;
+            const Vec3 xi = s == Shape::Hex ? Vec3{-1 + 2. * i / F, -1 + 2. * j / F, -1 + 2. * k / F}
+                                            : Vec3{double(i) / F, double(j) / F, -1 + 2. * k / F};
+            jacobian(b, X.data(), xi, J);
+            mn = std::min(mn, jacobian_determinant(3, J, nullptr));
+          }
+      auto q = element_quality(s, P, X.data());
+      CAPTURE(push);
+      if (push < 0) {
+        REQUIRE(mn < 0);  // truth: inverted somewhere
+        CHECK_FALSE(q.valid);
+      } else {
+        REQUIRE(mn > 0);
+        CHECK(q.valid);
+        CHECK_FALSE(q.sampled);
+        CHECK_FALSE(q.inconclusive);
+      }
+    }
+  }
 }
