@@ -10,7 +10,10 @@
 //   6. the fluid solid: the given closed shell(s) (outer minus inner), or a box around the body
 //      minus the body                                                      [fluid]
 //   7. same-domain faces and edges unified (ShapeUpgrade_UnifySameDomain)  [unify]
-//   8. checks: BRepCheck valid, every edge bounds exactly two faces, positive volume, no face
+//   8. checks: BRepCheck valid, every edge bounds exactly two faces, positive volume, no
+//      self-interference (faces of the solid crossing each other, or an edge or vertex lying
+//      on a face it does not bound: BOPAlgo_ArgumentAnalyzer in self-interference mode, i.e.
+//      BOPAlgo_CheckerSI; BRepCheck does not look for this) [check_self_intersection], no face
 //      narrower than the tolerance. Failure of any check is a StageError naming the entities.
 // Face tags: carried over from the input by geometry (a point inside each new face lies on the
 // old face), or, when the input has none (a raw STEP), by the box rule (cad::occt::tags_by_box).
@@ -21,6 +24,8 @@
 
 #include <nlohmann/json.hpp>
 
+#include <BOPAlgo_ArgumentAnalyzer.hxx>
+#include <BOPAlgo_CheckResult.hxx>
 #include <BRepAlgoAPI_Cut.hxx>
 #include <BRepBndLib.hxx>
 #include <BRepBuilderAPI_MakeSolid.hxx>
@@ -51,6 +56,8 @@
 #include <TopoDS_Solid.hxx>
 
 #include <algorithm>
+#include <array>
+#include <set>
 #include <cmath>
 #include <cstdio>
 #include <sstream>
@@ -169,6 +176,63 @@ double volume(const TopoDS_Shape& s) {
 }
 double diag_of(const Bnd_Box& b) { return b.IsVoid() ? 0 : std::sqrt(b.SquareExtent()); }
 
+// Self-interference of a closed solid: pairs of sub-shapes that interfere although they are
+// not adjacent (BOPAlgo_CheckerSI through BOPAlgo_ArgumentAnalyzer; with `parallel` OCCT
+// intersects the face pairs on its thread pool: the set found is the same, and it is sorted
+// here, so the result does not depend on the thread count), mapped to pairs of face ids of `s` (an edge or vertex
+// stands for the faces it bounds). Returns the sorted distinct face pairs; `pairs` counts the
+// interferences OCCT reported.
+struct SelfInterference {
+  int pairs = 0;
+  std::vector<std::array<int, 2>> face_pairs;
+};
+SelfInterference self_interference(const Shape& s, bool parallel) {
+  BOPAlgo_ArgumentAnalyzer an;
+  an.SetShape1(cad::occt::shape(s));
+  an.ArgumentTypeMode() = Standard_False;
+  an.SelfInterMode() = Standard_True;
+  an.SmallEdgeMode() = Standard_False;
+  an.RebuildFaceMode() = Standard_False;
+  an.TangentMode() = Standard_False;
+  an.MergeVertexMode() = Standard_False;
+  an.MergeEdgeMode() = Standard_False;
+  an.ContinuityMode() = Standard_False;
+  an.CurveOnSurfaceMode() = Standard_False;
+  an.SetRunParallel(parallel);
+  an.Perform();
+  SelfInterference r;
+  if (!an.HasFaulty()) return r;
+  const auto& I = s.impl();
+  auto faces_of = [&](const TopoDS_Shape& x) {
+    std::vector<int> f;
+    if (x.ShapeType() == TopAbs_FACE) {
+      if (int i = I.faces.FindIndex(x)) f.push_back(i - 1);
+    } else if (x.ShapeType() == TopAbs_EDGE) {
+      if (int i = I.edges.FindIndex(x)) f = s.edge_faces(i - 1);
+    } else {
+      TopTools_IndexedMapOfShape fs;
+      for (TopExp_Explorer ex(I.shape, TopAbs_FACE); ex.More(); ex.Next())
+        for (TopExp_Explorer v(ex.Current(), TopAbs_VERTEX); v.More(); v.Next())
+          if (v.Current().IsSame(x)) fs.Add(ex.Current());
+      for (int k = 1; k <= fs.Extent(); ++k)
+        if (int i = I.faces.FindIndex(fs(k))) f.push_back(i - 1);
+    }
+    return f;
+  };
+  std::set<std::array<int, 2>> pairs;
+  for (const BOPAlgo_CheckResult& c : an.GetCheckResult()) {
+    if (c.GetCheckStatus() != BOPAlgo_SelfIntersect) continue;
+    ++r.pairs;
+    std::vector<TopoDS_Shape> sub(c.GetFaultyShapes1().begin(), c.GetFaultyShapes1().end());
+    if (sub.size() < 2) continue;
+    for (int a : faces_of(sub[0]))
+      for (int b : faces_of(sub[1]))
+        if (a != b) pairs.insert({std::min(a, b), std::max(a, b)});
+  }
+  r.face_pairs.assign(pairs.begin(), pairs.end());
+  return r;
+}
+
 void run(StageContext& ctx) {
   const auto& P = ctx.params();
   Shape in = Shape::load(ctx.input("shape").path);
@@ -181,7 +245,8 @@ void run(StageContext& ctx) {
   double tol = P.at("tolerance").get<double>();
   if (tol <= 0) tol = 1e-6 * diag;
   const bool sew = P.at("sew").get<bool>(), small_edges = P.at("fix_small_edges").get<bool>(),
-             small_faces = P.at("fix_small_faces").get<bool>(), unify = P.at("unify").get<bool>();
+             small_faces = P.at("fix_small_faces").get<bool>(), unify = P.at("unify").get<bool>(),
+             check_si = P.at("check_self_intersection").get<bool>();
   const std::string fluid_mode = P.at("fluid").get<std::string>(), tag_mode = P.at("tags").get<std::string>();
   auto& st = ctx.stats();
   st["tolerance"] = tol;
@@ -368,6 +433,32 @@ void run(StageContext& ctx) {
   auto fe = out.free_edges(), me = out.multiple_edges();
   if (!fe.empty() || !me.empty())
     throw StageError(src + ": the fluid solid is not watertight:" + describe_edges(out, fe.empty() ? me : fe));
+  if (check_si) {
+    ctx.progress(0.9, "self-intersection");
+    SelfInterference si;
+    try {
+      si = self_interference(out, ctx.threads() > 1);
+    } catch (const Standard_Failure& e) {
+      throw StageError(src + ": OpenCASCADE failed checking the fluid solid for self-intersections (" +
+                       e.GetMessageString() + "); set check_self_intersection: false to skip the check");
+    }
+    st["self_intersections"] = si.pairs;
+    if (si.pairs > 0) {
+      std::string m;
+      for (size_t i = 0; i < si.face_pairs.size() && i < 8; ++i)
+        m += "\n  - " + cad::occt::describe_face(out, si.face_pairs[i][0]) + " and " +
+             cad::occt::describe_face(out, si.face_pairs[i][1]);
+      if (si.face_pairs.size() > 8) m += "\n  - ... and " + std::to_string(si.face_pairs.size() - 8) + " more pairs";
+      std::string ids;
+      std::set<int> fs;
+      for (auto& p : si.face_pairs) fs.insert(p.begin(), p.end());
+      for (int f : fs) ids += (ids.empty() ? "" : ", ") + std::to_string(f);
+      throw StageError(src + ": the fluid solid intersects itself (" + std::to_string(si.pairs) +
+                       " interference(s) between non-adjacent faces, edges or vertices that sewing and the boolean "
+                       "operations did not resolve); faces " + (ids.empty() ? std::string("?") : ids) + ":" + m +
+                       "\nRepair the CAD in its source system (the named faces cross each other).");
+    }
+  }
   if (out.volume() <= 0)
     throw StageError(src + ": the fluid solid has volume " + fmt(out.volume()) + " <= 0 (inside out)");
   std::vector<int> slivers;
@@ -400,12 +491,13 @@ void run(StageContext& ctx) {
   st["face_tags"] = summary["face_tags"];
   st["tag_overrides"] = (int)P.at("tag_overrides").size();
   st["watertight"] = true;
+  st["self_intersection_check"] = check_si;
   out.save(ctx.output("shape", "shape"));
   ctx.progress(1.0, "done");
 }
 
 StageRegistrar reg({.kind = "heal",
-                    .version = 1,
+                    .version = 2,
                     .summary = "sew, fix and close the CAD into a watertight fluid solid; refuse what cannot be repaired",
                     .libraries = {"OCCT " OCC_VERSION_COMPLETE},
                     .run = run});
