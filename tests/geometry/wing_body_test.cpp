@@ -13,6 +13,7 @@
 #include <GProp_GProps.hxx>
 
 #include <algorithm>
+#include <cstdint>
 #include <iomanip>
 #include <cmath>
 #include <map>
@@ -347,4 +348,43 @@ TEST_CASE("wing_body is deterministic and heals to a watertight fluid with the s
   CHECK(s.faces_with_tag(Tag::farfield).size() == 5);
   CHECK(h.stats_["self_intersections"] == 0);
   CHECK(s.volume() == doctest::Approx(Shape::load(a.artifact("shape").path).volume()).epsilon(1e-9));
+}
+
+TEST_CASE("workflows/wing_body_parametric.yaml runs to balance and the shell puts junction blocks at the wing-body junction") {
+  auto d = mftest::temp_dir("wing-body-workflow");
+  std::string wf = std::string(MESHFLOW_SOURCE_DIR) + "/workflows/wing_body_parametric.yaml";
+  auto r = mftest::sh(std::string(MESHFLOW_EXE) + " run " + wf + " --cache " + (d / "cache").string() + " --out " +
+                      (d / "out").string() + " 2>&1");
+  INFO(r.out);
+  REQUIRE(r.code == 0);
+  json rep = json::parse(mftest::read_text(d / "out/report.json"));
+  json shell_stats;
+  for (auto& s : rep["stages"])
+    if (s["name"] == "shell") shell_stats = s["stats"];
+  REQUIRE(shell_stats.is_object());
+  CHECK(shell_stats["counts"]["hex_junction_blocks"].get<int>() >= 1);
+  // the healed shape (from the cache, by its digest) and the shell's blocks (JSON header)
+  std::string dg = rep["outputs"]["shape"]["digest"];
+  Shape s = Shape::load(d / "cache/objects" / dg.substr(0, 2) / dg);
+  std::string sh = mftest::read_text(d / "out/shell.mfshell");
+  REQUIRE(sh.size() > 12);
+  std::uint32_t hl = 0;
+  for (int i = 0; i < 4; ++i) hl |= std::uint32_t(static_cast<unsigned char>(sh[8 + i])) << (8 * i);
+  json header = json::parse(sh.substr(12, hl));
+  // the model's parameters as the workflow sets them (the defaults of the kind, see the schema)
+  TestContext defaults("wing_body", {{"incidence_deg", 3.0}});
+  Model M = model_of(defaults);
+  Parts P = split_walls(s, M);
+  std::set<int> body(P.body.begin(), P.body.end()), wing(P.wing.begin(), P.wing.end());
+  int at_junction = 0;
+  for (auto& b : header["blocks"]) {
+    if (b["kind"] != "hex_junction") continue;
+    int f = b["face"], g = b["partner"];
+    at_junction += (body.count(f) && wing.count(g)) || (body.count(g) && wing.count(f));
+  }
+  CHECK(at_junction >= 1);
+  CHECK(at_junction == shell_stats["counts"]["hex_junction_blocks"].get<int>());  // only there (junction_with: [wall])
+  MESSAGE("wing_body_parametric shell: " << shell_stats["counts"].dump() << ", self_intersections "
+                                         << shell_stats["self_intersections"]);
+  std::filesystem::remove_all(d);
 }
