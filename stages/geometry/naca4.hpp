@@ -117,6 +117,20 @@ inline Handle(Geom_BSplineCurve) interpolated_profile(const Naca4& n, double c, 
   return bs;
 }
 
+// The edges of a section wire: a sharp trailing edge closes the profile, which is then split at
+// the leading edge (s = 0) into the lower and upper surfaces, so that the trailing edge is a
+// real edge between two faces (one closed face would touch itself along its seam there, which
+// OpenCASCADE's self-intersection check reports and meshing cannot use as a feature edge); a
+// blunt profile is one curve (the trailing-edge segment is added by the caller).
+inline std::vector<Handle(Geom_BSplineCurve)> profile_pieces(const Handle(Geom_BSplineCurve)& C, bool sharp) {
+  if (!sharp) return {C};
+  Handle(Geom_BSplineCurve) lo = Handle(Geom_BSplineCurve)::DownCast(C->Copy());
+  Handle(Geom_BSplineCurve) up = Handle(Geom_BSplineCurve)::DownCast(C->Copy());
+  lo->Segment(C->FirstParameter(), 0);
+  up->Segment(0, C->LastParameter());
+  return {lo, up};
+}
+
 // Parses "mptt"; throws StageError (prefixed by `who`) for a zero thickness or a camber
 // without a camber position (or the reverse).
 inline Naca4 parse(const std::string& prof, bool sharp, const std::string& who) {

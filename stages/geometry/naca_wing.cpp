@@ -90,7 +90,7 @@ void run(StageContext& ctx) {
   try {
     gp_Pnt te_lo = C->Value(-1), te_up = C->Value(1);
     BRepBuilderAPI_MakeWire mw;
-    mw.Add(BRepBuilderAPI_MakeEdge(C));
+    for (auto& piece : naca::profile_pieces(C, sharp)) mw.Add(BRepBuilderAPI_MakeEdge(piece));
     if (!sharp) mw.Add(BRepBuilderAPI_MakeEdge(te_up, te_lo));
     TopoDS_Face section = BRepBuilderAPI_MakeFace(mw.Wire(), Standard_True);
     gp_Trsf down;
@@ -154,7 +154,7 @@ void run(StageContext& ctx) {
 }
 
 StageRegistrar reg({.kind = "naca_wing",
-                    .version = 1,
+                    .version = 2,  // 2: a sharp trailing edge is an edge between lower and upper faces
                     .summary = "NACA 4-digit wing with round tip, root on the wall of a box far field",
                     .libraries = {"OCCT " OCC_VERSION_COMPLETE},
                     .run = run});

@@ -206,7 +206,7 @@ double volume(const TopoDS_Shape& s) {
 TopoDS_Wire section_wire(const Handle(Geom_BSplineCurve)& C, bool sharp, const gp_Trsf& t) {
   Handle(Geom_BSplineCurve) c = Handle(Geom_BSplineCurve)::DownCast(C->Transformed(t));
   BRepBuilderAPI_MakeWire mw;
-  mw.Add(BRepBuilderAPI_MakeEdge(c).Edge());
+  for (auto& piece : naca::profile_pieces(c, sharp)) mw.Add(BRepBuilderAPI_MakeEdge(piece).Edge());
   if (!sharp) mw.Add(BRepBuilderAPI_MakeEdge(c->Value(c->LastParameter()), c->Value(c->FirstParameter())).Edge());
   return mw.Wire();
 }

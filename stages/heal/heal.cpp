@@ -185,6 +185,7 @@ double diag_of(const Bnd_Box& b) { return b.IsVoid() ? 0 : std::sqrt(b.SquareExt
 struct SelfInterference {
   int pairs = 0;
   std::vector<std::array<int, 2>> face_pairs;
+  std::vector<std::string> other;  // interferences not between two distinct faces, described
 };
 SelfInterference self_interference(const Shape& s, bool parallel) {
   BOPAlgo_ArgumentAnalyzer an;
@@ -224,10 +225,25 @@ SelfInterference self_interference(const Shape& s, bool parallel) {
     if (c.GetCheckStatus() != BOPAlgo_SelfIntersect) continue;
     ++r.pairs;
     std::vector<TopoDS_Shape> sub(c.GetFaultyShapes1().begin(), c.GetFaultyShapes1().end());
-    if (sub.size() < 2) continue;
-    for (int a : faces_of(sub[0]))
-      for (int b : faces_of(sub[1]))
-        if (a != b) pairs.insert({std::min(a, b), std::max(a, b)});
+    bool distinct = false;
+    if (sub.size() >= 2)
+      for (int a : faces_of(sub[0]))
+        for (int b : faces_of(sub[1]))
+          if (a != b) distinct = true, pairs.insert({std::min(a, b), std::max(a, b)});
+    if (!distinct && r.other.size() < 8) {
+      std::string d;
+      for (auto& x : sub) {
+        static const char* type[] = {"compound", "compsolid", "solid", "shell", "face", "wire", "edge", "vertex", "shape"};
+        std::string fs;
+        for (int f : faces_of(x)) fs += (fs.empty() ? "" : ",") + std::to_string(f);
+        d += std::string(d.empty() ? "" : " with ") + type[std::min<int>(x.ShapeType(), 8)] + " of face(s) " + fs;
+        if (x.ShapeType() == TopAbs_VERTEX) {
+          gp_Pnt p = BRep_Tool::Pnt(TopoDS::Vertex(x));
+          d += " at " + pt({p.X(), p.Y(), p.Z()});
+        }
+      }
+      r.other.push_back(d);
+    }
   }
   r.face_pairs.assign(pairs.begin(), pairs.end());
   return r;
@@ -449,6 +465,7 @@ void run(StageContext& ctx) {
         m += "\n  - " + cad::occt::describe_face(out, si.face_pairs[i][0]) + " and " +
              cad::occt::describe_face(out, si.face_pairs[i][1]);
       if (si.face_pairs.size() > 8) m += "\n  - ... and " + std::to_string(si.face_pairs.size() - 8) + " more pairs";
+      for (auto& o : si.other) m += "\n  - " + o;
       std::string ids;
       std::set<int> fs;
       for (auto& p : si.face_pairs) fs.insert(p.begin(), p.end());

@@ -313,8 +313,12 @@ TEST_CASE("wing_body: cambered 2412, sharp trailing edge, flat tip; the interpol
   check_closed(s);
   CHECK(ctx.stats_["profile_exact"] == false);
   Parts P = split_walls(s, M);
-  CHECK(P.wing.size() == 2);  // surface and tip: no trailing-edge face
+  CHECK(P.wing.size() == 3);  // lower and upper surfaces meeting at the trailing edge, and the tip
   for (double y : {8.0, 20.0}) CHECK(section_error(s, M, P.wing, y) < 1e-6);
+  // heal accepts it: no face touches itself along a trailing-edge seam
+  TestContext h("heal", {}, {ctx.artifact("shape")});
+  h.run();
+  CHECK(h.stats_["self_intersections"] == 0);
 }
 
 TEST_CASE("wing_body: refusals") {
