@@ -1,7 +1,7 @@
 // Geometry benchmark (issue 4): building the parametric wing_body half model (default CRM-like
 // flat tip, and round tip + ogive nose) and healing it, and the cost of heal's self-intersection
-// check (check_self_intersection true/false) on the wing_body, the paper's wing STEP and the
-// DLR-F6 BREP. Writes a Markdown fragment to bench/results/wing_body.md (argv[1] overrides).
+// check (check_self_intersection full / edges / off) on the wing_body, the Rotor 67 sector, the
+// paper's wing STEP and the DLR-F6 BREP. Writes a Markdown fragment to bench/results/wing_body.md (argv[1] overrides).
 // Build and run: cmake --build BUILD --target geometry_bench && BUILD/bench/geometry_bench
 #include "bench_context.hpp"
 #include "engine/registry.hpp"
@@ -72,8 +72,8 @@ int main(int argc, char** argv) {
         "`cmake --build build --target geometry_bench && build/bench/geometry_bench` (Release, 1 thread; wall time, "
         "median of 3 runs after a warm-up unless noted; load average at start "
      << f3(loadavg()) << " on the shared 2-core machine).\n\n";
-  md << "| model | build s | heal s (check on) | heal s (check off) | faces | junction edges / length | "
-        "self-intersections |\n|---|---|---|---|---|---|---|\n";
+  md << "| model | build s | heal s (check full) | heal s (edges) | heal s (off) | faces | junction edges / length | "
+        "self-intersections |\n|---|---|---|---|---|---|---|---|\n";
   struct Case {
     const char* name;
     json params;
@@ -82,24 +82,31 @@ int main(int argc, char** argv) {
                         Case{"wing_body round tip, ogive nose", {{"tip", "round"}, {"nose", "ogive"}}}}) {
     Run g = median(3, "wing_body", c.params, {}, dir);
     Run on = median(3, "heal", json::object(), {g.out}, dir);
-    Run off = median(3, "heal", {{"check_self_intersection", false}}, {g.out}, dir);
+    Run edges = median(3, "heal", {{"check_self_intersection", "edges"}}, {g.out}, dir);
+    Run off = median(3, "heal", {{"check_self_intersection", "off"}}, {g.out}, dir);
     std::ostringstream row;
-    row << "| " << c.name << " | " << f3(g.seconds) << " | " << f3(on.seconds) << " | " << f3(off.seconds) << " | "
+    row << "| " << c.name << " | " << f3(g.seconds) << " | " << f3(on.seconds) << " | " << f3(edges.seconds) << " | "
+        << f3(off.seconds) << " | "
         << g.stats["faces"].get<int>() << " | " << g.stats["junction"]["edges"].get<int>() << " / "
         << f3(g.stats["junction"]["length"].get<double>()) << " | " << on.stats["self_intersections"].get<int>()
         << " |\n";
     md << row.str();
     std::cout << row.str() << std::flush;
   }
-  md << "\nImported CAD (one run each, no warm-up for the DLR-F6):\n\n"
-        "| input | import s | heal s (check on) | heal s (check off) | faces after heal | self-intersections |\n"
-        "|---|---|---|---|---|---|\n";
-  for (auto name : {"wingtip/3d_bl_wing.stp", "dlr_f6/dlr_f6.brep"}) {
-    Run imp = run("step", {{"file", (data / name).string()}}, {}, dir);
+  md << "\nFiles (one run each, no warm-up):\n\n"
+        "| input | import/build s | heal s (check full) | heal s (edges) | heal s (off) | faces after heal | "
+        "self-intersections |\n|---|---|---|---|---|---|---|\n";
+  for (auto name : {"rotor67/rotor67geometry.dat", "wingtip/3d_bl_wing.stp", "dlr_f6/dlr_f6.brep"}) {
+    bool rotor = std::string(name).find("rotor67") != std::string::npos;
+    Run imp = rotor ? run("blade_sector", {{"file", (data / name).string()}, {"format", "rotor67"}, {"upstream", 1.0},
+                                           {"downstream", 1.0}}, {}, dir)
+                    : run("step", {{"file", (data / name).string()}}, {}, dir);
     Run on = run("heal", json::object(), {imp.out}, dir);
-    Run off = run("heal", {{"check_self_intersection", false}}, {imp.out}, dir);
+    Run edges = run("heal", {{"check_self_intersection", "edges"}}, {imp.out}, dir);
+    Run off = run("heal", {{"check_self_intersection", "off"}}, {imp.out}, dir);
     std::ostringstream row;
-    row << "| " << name << " | " << f3(imp.seconds) << " | " << f3(on.seconds) << " | " << f3(off.seconds) << " | "
+    row << "| " << name << " | " << f3(imp.seconds) << " | " << f3(on.seconds) << " | " << f3(edges.seconds) << " | "
+        << f3(off.seconds) << " | "
         << on.stats["after"]["faces"].get<int>() << " | " << on.stats["self_intersections"].get<int>() << " |\n";
     md << row.str();
     std::cout << row.str() << std::flush;

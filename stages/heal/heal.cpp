@@ -24,8 +24,9 @@
 
 #include <nlohmann/json.hpp>
 
-#include <BOPAlgo_ArgumentAnalyzer.hxx>
-#include <BOPAlgo_CheckResult.hxx>
+#include <BOPAlgo_CheckerSI.hxx>
+#include <BOPDS_DS.hxx>
+#include <BOPDS_MapOfPair.hxx>
 #include <BRepAlgoAPI_Cut.hxx>
 #include <BRepBndLib.hxx>
 #include <BRepBuilderAPI_MakeSolid.hxx>
@@ -177,32 +178,39 @@ double volume(const TopoDS_Shape& s) {
 double diag_of(const Bnd_Box& b) { return b.IsVoid() ? 0 : std::sqrt(b.SquareExtent()); }
 
 // Self-interference of a closed solid: pairs of sub-shapes that interfere although they are
-// not adjacent (BOPAlgo_CheckerSI through BOPAlgo_ArgumentAnalyzer; with `parallel` OCCT
-// intersects the face pairs on its thread pool: the set found is the same, and it is sorted
-// here, so the result does not depend on the thread count), mapped to pairs of face ids of `s` (an edge or vertex
-// stands for the faces it bounds). Returns the sorted distinct face pairs; `pairs` counts the
-// interferences OCCT reported.
+// not adjacent, and faces whose surface crosses itself inside the face (BOPAlgo_CheckerSI, as
+// BOPAlgo_ArgumentAnalyzer runs it, but with its level: 5 "full" = also face/face and face
+// self-intersection, 4 "edges" = vertex/edge/face interferences up to edge/face only). With
+// `parallel` OCCT intersects on its thread pool: the set found is the same and is sorted here,
+// so the result does not depend on the thread count. Interferences are mapped to pairs of face
+// ids of `s` (an edge or vertex stands for the faces it bounds); the others are described.
 struct SelfInterference {
   int pairs = 0;
+  bool aborted = false;  // OCCT's checker stopped with an error: the answer is unknown
   std::vector<std::array<int, 2>> face_pairs;
   std::vector<std::string> other;  // interferences not between two distinct faces, described
 };
-SelfInterference self_interference(const Shape& s, bool parallel) {
-  BOPAlgo_ArgumentAnalyzer an;
-  an.SetShape1(cad::occt::shape(s));
-  an.ArgumentTypeMode() = Standard_False;
-  an.SelfInterMode() = Standard_True;
-  an.SmallEdgeMode() = Standard_False;
-  an.RebuildFaceMode() = Standard_False;
-  an.TangentMode() = Standard_False;
-  an.MergeVertexMode() = Standard_False;
-  an.MergeEdgeMode() = Standard_False;
-  an.ContinuityMode() = Standard_False;
-  an.CurveOnSurfaceMode() = Standard_False;
-  an.SetRunParallel(parallel);
-  an.Perform();
+SelfInterference self_interference(const Shape& s, int level, bool parallel) {
+  BOPAlgo_CheckerSI ch;
+  TopTools_ListOfShape args;
+  args.Append(cad::occt::shape(s));
+  ch.SetArguments(args);
+  ch.SetNonDestructive(Standard_True);
+  ch.SetLevelOfCheck(level);
+  ch.SetRunParallel(parallel);
+  ch.Perform();
   SelfInterference r;
-  if (!an.HasFaulty()) return r;
+  r.aborted = ch.HasErrors();
+  const BOPDS_DS& ds = *ch.PDS();
+  std::vector<std::array<int, 2>> idx;  // DS indices, sorted: the map's order is a hash order
+  for (BOPDS_MapIteratorOfMapOfPair it(ds.Interferences()); it.More(); it.Next()) {
+    int n1, n2;
+    it.Value().Indices(n1, n2);
+    idx.push_back({std::min(n1, n2), std::max(n1, n2)});
+  }
+  std::sort(idx.begin(), idx.end());
+  std::vector<std::array<TopoDS_Shape, 2>> found;
+  for (auto& [n1, n2] : idx) found.push_back({ds.Shape(n1), ds.Shape(n2)});
   const auto& I = s.impl();
   auto faces_of = [&](const TopoDS_Shape& x) {
     std::vector<int> f;
@@ -221,10 +229,10 @@ SelfInterference self_interference(const Shape& s, bool parallel) {
     return f;
   };
   std::set<std::array<int, 2>> pairs;
-  for (const BOPAlgo_CheckResult& c : an.GetCheckResult()) {
-    if (c.GetCheckStatus() != BOPAlgo_SelfIntersect) continue;
+  for (auto& both : found) {
     ++r.pairs;
-    std::vector<TopoDS_Shape> sub(c.GetFaultyShapes1().begin(), c.GetFaultyShapes1().end());
+    std::vector<TopoDS_Shape> sub = {both[0]};
+    if (!both[1].IsSame(both[0])) sub.push_back(both[1]);
     bool distinct = false;
     if (sub.size() >= 2)
       for (int a : faces_of(sub[0]))
@@ -232,6 +240,10 @@ SelfInterference self_interference(const Shape& s, bool parallel) {
           if (a != b) distinct = true, pairs.insert({std::min(a, b), std::max(a, b)});
     if (!distinct && r.other.size() < 8) {
       std::string d;
+      if (sub.size() == 1 && sub[0].ShapeType() == TopAbs_FACE && !faces_of(sub[0]).empty()) {
+        r.other.push_back(cad::occt::describe_face(s, faces_of(sub[0])[0]) + " intersects itself");
+        continue;
+      }
       for (auto& x : sub) {
         static const char* type[] = {"compound", "compsolid", "solid", "shell", "face", "wire", "edge", "vertex", "shape"};
         std::string fs;
@@ -262,7 +274,8 @@ void run(StageContext& ctx) {
   if (tol <= 0) tol = 1e-6 * diag;
   const bool sew = P.at("sew").get<bool>(), small_edges = P.at("fix_small_edges").get<bool>(),
              small_faces = P.at("fix_small_faces").get<bool>(), unify = P.at("unify").get<bool>(),
-             check_si = P.at("check_self_intersection").get<bool>();
+             check_si = P.at("check_self_intersection").get<std::string>() != "off";
+  const int si_level = P.at("check_self_intersection").get<std::string>() == "edges" ? 4 : 5;
   const std::string fluid_mode = P.at("fluid").get<std::string>(), tag_mode = P.at("tags").get<std::string>();
   auto& st = ctx.stats();
   st["tolerance"] = tol;
@@ -453,12 +466,17 @@ void run(StageContext& ctx) {
     ctx.progress(0.9, "self-intersection");
     SelfInterference si;
     try {
-      si = self_interference(out, ctx.threads() > 1);
+      si = self_interference(out, si_level, ctx.threads() > 1);
     } catch (const Standard_Failure& e) {
       throw StageError(src + ": OpenCASCADE failed checking the fluid solid for self-intersections (" +
-                       e.GetMessageString() + "); set check_self_intersection: false to skip the check");
+                       e.GetMessageString() + "); set check_self_intersection: off to skip the check");
     }
     st["self_intersections"] = si.pairs;
+    if (si.aborted) {
+      st["self_intersection_check_aborted"] = true;
+      ctx.log("heal: warning: OpenCASCADE's self-intersection checker stopped with an error; what it found before "
+              "is reported, the rest of the solid is unchecked");
+    }
     if (si.pairs > 0) {
       std::string m;
       for (size_t i = 0; i < si.face_pairs.size() && i < 8; ++i)
@@ -472,7 +490,7 @@ void run(StageContext& ctx) {
       for (int f : fs) ids += (ids.empty() ? "" : ", ") + std::to_string(f);
       throw StageError(src + ": the fluid solid intersects itself (" + std::to_string(si.pairs) +
                        " interference(s) between non-adjacent faces, edges or vertices that sewing and the boolean "
-                       "operations did not resolve); faces " + (ids.empty() ? std::string("?") : ids) + ":" + m +
+                       "operations did not resolve)" + (ids.empty() ? std::string(":") : "; faces " + ids + ":") + m +
                        "\nRepair the CAD in its source system (the named faces cross each other).");
     }
   }
@@ -508,7 +526,7 @@ void run(StageContext& ctx) {
   st["face_tags"] = summary["face_tags"];
   st["tag_overrides"] = (int)P.at("tag_overrides").size();
   st["watertight"] = true;
-  st["self_intersection_check"] = check_si;
+  st["self_intersection_check"] = P.at("check_self_intersection");
   out.save(ctx.output("shape", "shape"));
   ctx.progress(1.0, "done");
 }
