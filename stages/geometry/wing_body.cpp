@@ -6,8 +6,8 @@
 // Frame: x along the body axis (flow direction), the nose tip at the origin; y spanwise, the
 // half model is y >= 0 and the symmetry plane is y = 0; z up. The body axis is the x axis.
 //
-// Body (a solid of revolution of a meridian in the plane z = 0, revolved 2π about x; the
-// seam is the meridian at y < 0, which the symmetry cut removes):
+// Body (a half solid of revolution: the meridian in the plane y = 0, z <= 0, revolved by π about
+// x through y > 0, so that its meridian edges on the symmetry plane are the exact profile curves):
 //   nose     x in [0, Ln]: ellipsoid r = R sqrt(1 - ((Ln-x)/Ln)^2) (a rational quadratic
 //            Bezier, exact) or tangent ogive (circular arc of radius (R^2+Ln^2)/(2R));
 //   cylinder x in [Ln, Ln+Lc]: r = R;
@@ -24,7 +24,8 @@
 // span station of the tip section. Since x_le, z_le and c are linear in y and the incidence is
 // constant (no twist), the wing surface is EXACTLY the ruled surface between the root (y = 0)
 // and tip sections (BRepOffsetAPI_ThruSections, ruled): every streamwise section is the
-// transformed 4-digit profile (exact for 00tt profiles, see naca4.hpp). The tip is flat (the
+// transformed 4-digit profile (exact for 00tt profiles, see naca4.hpp; a sharp trailing edge
+// is an edge between the lower and upper faces, a blunt one a planar face). The tip is flat (the
 // tip section) or round (the upper half of the tip section revolved about its chord line into
 // y > yt, symmetric profiles only); `semispan` is the distance from the symmetry plane to the
 // tip extremity, round tip included.
@@ -275,10 +276,8 @@ void run(StageContext& ctx) {
                      " (the tail tapers the body down to its base)");
   double ymax = 0;  // largest half thickness, chord 1 (the round tip's radius / tip chord)
   for (int i = 0; i <= 200000; ++i) ymax = std::max(ymax, n.yt(i / 200000.0));
-  double tip_ext = 0;
-  // the round tip's outboard extent is ymax * c_tip and c_tip depends on the tip station: solve
-  // yt + ymax * c(yt) = semispan with c(yt) = lambda c0
-  if (round) tip_ext = ymax * w.lambda * w.c0;
+  // the round tip reaches ymax * c_tip beyond the tip section, c_tip = lambda c0
+  double tip_ext = round ? ymax * w.lambda * w.c0 : 0.0;
   w.yt = semispan - tip_ext;
   if (w.yt <= 0.05 * semispan)
     throw StageError(who + ": semispan " + num(semispan) + " is too short for the round tip (which adds " +
