@@ -530,6 +530,11 @@ std::string Shape::face_surface_type(int f) const {
   int t = (int)a.GetType();
   return t >= 0 && t < 11 ? names[t] : "other";
 }
+std::array<double, 2> Shape::face_periods(int f) const {
+  impl_->face(f);
+  const auto& S = impl_->surfaces[f];
+  return {S->IsUPeriodic() ? S->UPeriod() : 0.0, S->IsVPeriodic() ? S->VPeriod() : 0.0};
+}
 std::string Shape::edge_curve_type(int e) const {
   const auto& c = impl_->curves[(impl_->edge(e), e)];
   if (c.IsNull()) return "degenerate";

@@ -194,6 +194,9 @@ class Shape {
   double face_area(int face) const;
   Box face_box(int face) const;
   std::string face_surface_type(int face) const;  // "plane", "bspline", "revolution", ...
+  // Periods of the face's surface in u and v (0: not periodic), e.g. {2 pi, 0} for a surface of
+  // revolution: a (u,v) and (u + k period, v) are the same point.
+  std::array<double, 2> face_periods(int face) const;
   std::string edge_curve_type(int edge) const;    // "line", "circle", "bspline", ...
 
   Impl& impl() { return *impl_; }

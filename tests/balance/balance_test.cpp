@@ -280,11 +280,21 @@ TEST_CASE("meshflow run: naca_wing -> heal -> medial -> shell -> balance, divisi
       auto r = shape.edge_range(e.cad_edge);
       CHECK(e.nodes.front() == r.lo);
       CHECK(e.nodes.back() == r.hi);
-      // equal arc length: every division is length / n within 1%
+      // graded by the sizing: each division holds target/n of the integral of ds/h, and
+      // min_size <= h <= max_size (0.01 and 0.1 of the 1.04 wall box), so its length lies in
+      // [h_min, h_max] * target / n; the lengths add up to the edge
       double L = shape.edge_length(e.cad_edge);
       CHECK(L == doctest::Approx(e.length).epsilon(1e-6));
-      for (int k = 0; k < e.n; ++k)
-        CHECK(shape.edge_length(e.cad_edge, e.nodes[k], e.nodes[k + 1]) == doctest::Approx(L / e.n).epsilon(0.01));
+      const double Lref = 1.04, hmin = 0.01 * Lref, hmax = 0.1 * Lref * 1.001;
+      double sum = 0;
+      for (int k = 0; k < e.n; ++k) {
+        double s = shape.edge_length(e.cad_edge, e.nodes[k], e.nodes[k + 1]);
+        sum += s;
+        if (L < hmin) continue;  // a target below 1 was raised to 1: one division, any length
+        CHECK(s >= 0.98 * hmin * e.target / e.n);
+        CHECK(s <= 1.02 * hmax * e.target / e.n);
+      }
+      CHECK(sum == doctest::Approx(L).epsilon(1e-6));
       std::string s = "s" + std::to_string(e.cad_edge), jc = "j" + std::to_string(e.cad_edge) + "c";
       REQUIRE((d.find(s) || d.find(jc)));
       CHECK((d.find(s) ? d.find(s) : d.find(jc))->n == e.n);  // shell image / junction corner: same count
