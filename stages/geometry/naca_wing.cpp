@@ -14,6 +14,7 @@
 #include "stages/cad/cad.hpp"
 #include "stages/cad/occt.hpp"
 #include "stages/cad/tag_rules.hpp"
+#include "stages/geometry/naca4.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -52,94 +53,7 @@
 namespace meshflow::geometry {
 namespace {
 
-struct Naca4 {
-  double m = 0, p = 0, t = 0.12;
-  bool sharp = false;
-  double a4() const { return sharp ? -0.1036 : -0.1015; }
-  // half thickness at x (chord 1)
-  double yt(double x) const {
-    double s = std::sqrt(std::max(x, 0.0));
-    return 5 * t * (0.2969 * s - 0.1260 * x - 0.3516 * x * x + 0.2843 * x * x * x + a4() * x * x * x * x);
-  }
-  double yc(double x) const {
-    if (m == 0) return 0;
-    return x < p ? m / (p * p) * (2 * p * x - x * x) : m / ((1 - p) * (1 - p)) * (1 - 2 * p + 2 * p * x - x * x);
-  }
-  double dyc(double x) const {
-    if (m == 0) return 0;
-    return x < p ? 2 * m / (p * p) * (p - x) : 2 * m / ((1 - p) * (1 - p)) * (p - x);
-  }
-  // Point of the profile at s in [-1,1] (x = s^2; s > 0 upper surface), chord 1.
-  std::array<double, 2> point(double s) const {
-    double x = s * s, y = (s >= 0 ? 1 : -1) * yt(x);
-    double th = std::atan(dyc(x));
-    return {x - y * std::sin(th), yc(x) + y * std::cos(th)};
-  }
-};
-
-double binom(int n, int k) {
-  double r = 1;
-  for (int i = 1; i <= k; ++i) r = r * (n - k + i) / i;
-  return r;
-}
-
-// Bernstein (Bezier) coefficients on s in [a,b] of the polynomial sum c[i] s^i (degree n).
-std::vector<double> bezier_coeffs(const std::vector<double>& c, double a, double b, int n) {
-  double h = b - a;
-  std::vector<double> d(n + 1, 0.0);  // monomial coefficients in tau
-  for (int i = 0; i < (int)c.size(); ++i)
-    for (int j = 0; j <= i; ++j) d[j] += c[i] * binom(i, j) * std::pow(a, i - j) * std::pow(h, j);
-  std::vector<double> bz(n + 1, 0.0);
-  for (int k = 0; k <= n; ++k)
-    for (int j = 0; j <= k; ++j) bz[k] += binom(k, j) / binom(n, j) * d[j];
-  return bz;
-}
-
-// Exact degree-8 B-spline of a symmetric profile, chord c, in the plane z = 0.
-Handle(Geom_BSplineCurve) symmetric_profile(const Naca4& n, double c) {
-  const int deg = 8;
-  double k = 5 * n.t;
-  std::vector<double> xs = {0, 0, 1};  // x = s^2
-  std::vector<double> yu = {0, k * 0.2969, k * -0.1260, 0, k * -0.3516, 0, k * 0.2843, 0, k * n.a4()};
-  std::vector<double> yl = yu;
-  for (int i = 2; i <= 8; ++i) yl[i] = -yu[i];
-  auto xl = bezier_coeffs(xs, -1, 0, deg), ylb = bezier_coeffs(yl, -1, 0, deg);
-  auto xu = bezier_coeffs(xs, 0, 1, deg), yub = bezier_coeffs(yu, 0, 1, deg);
-  TColgp_Array1OfPnt poles(1, 17);
-  for (int i = 0; i <= 8; ++i) poles(i + 1) = gp_Pnt(c * xl[i], c * ylb[i], 0);
-  for (int i = 1; i <= 8; ++i) poles(9 + i) = gp_Pnt(c * xu[i], c * yub[i], 0);
-  TColStd_Array1OfReal knots(1, 3);
-  knots(1) = -1; knots(2) = 0; knots(3) = 1;
-  TColStd_Array1OfInteger mults(1, 3);
-  mults(1) = 9; mults(2) = 8; mults(3) = 9;
-  Handle(Geom_BSplineCurve) bs = new Geom_BSplineCurve(poles, knots, mults, deg);
-  bs->RemoveKnot(2, 7, 1e-12 * c);  // the pieces join C1 at the leading edge
-  return bs;
-}
-
-Handle(Geom_BSplineCurve) interpolated_profile(const Naca4& n, double c, double& max_err) {
-  const int N = 401;
-  Handle(TColgp_HArray1OfPnt) pts = new TColgp_HArray1OfPnt(1, N);
-  Handle(TColStd_HArray1OfReal) par = new TColStd_HArray1OfReal(1, N);
-  for (int i = 0; i < N; ++i) {
-    double s = -1 + 2.0 * i / (N - 1);
-    auto q = n.point(s);
-    pts->SetValue(i + 1, gp_Pnt(c * q[0], c * q[1], 0));
-    par->SetValue(i + 1, s);
-  }
-  GeomAPI_Interpolate ip(pts, par, Standard_False, 1e-12);
-  ip.Perform();
-  if (!ip.IsDone()) throw StageError("naca_wing: interpolating the cambered profile failed");
-  Handle(Geom_BSplineCurve) bs = ip.Curve();
-  max_err = 0;
-  for (int i = 0; i < 4 * (N - 1); ++i) {
-    double s = -1 + 2.0 * (i + 0.5) / (4 * (N - 1));
-    auto q = n.point(s);
-    GeomAPI_ProjectPointOnCurve pr(gp_Pnt(c * q[0], c * q[1], 0), bs);
-    if (pr.NbPoints() > 0) max_err = std::max(max_err, pr.LowerDistance() / c);
-  }
-  return bs;
-}
+using naca::Naca4;
 
 TopoDS_Shape moved(const TopoDS_Shape& s, const gp_Trsf& t) { return BRepBuilderAPI_Transform(s, t, Standard_True).Shape(); }
 
@@ -154,16 +68,7 @@ void run(StageContext& ctx) {
   double ff = P.at("farfield_chords").get<double>(), wake = P.at("wake_chords").get<double>();
   std::string units = P.at("units").get<std::string>();
 
-  Naca4 n;
-  n.m = (prof[0] - '0') / 100.0;
-  n.p = (prof[1] - '0') / 10.0;
-  n.t = std::stoi(prof.substr(2)) / 100.0;
-  n.sharp = sharp;
-  if (n.t <= 0) throw StageError("naca_wing: profile \"" + prof + "\" has zero thickness; use e.g. \"0012\"");
-  if ((n.m > 0) != (n.p > 0))
-    throw StageError("naca_wing: profile \"" + prof +
-                     "\" gives a camber without a camber position (or the reverse): the first two digits must "
-                     "both be 0 (symmetric) or both non-zero");
+  Naca4 n = naca::parse(prof, sharp, "naca_wing");
   if (round && n.m > 0)
     throw StageError("naca_wing: a round tip is the profile revolved about its chord line, which closes only a "
                      "symmetric profile; profile \"" + prof + "\" is cambered: use tip: flat or a 00xx profile");
@@ -171,7 +76,7 @@ void run(StageContext& ctx) {
   cad::occt::Log log([&](const std::string& s) { ctx.log(s); });
   ctx.progress(0.05, "profile");
   double max_err = 0;
-  Handle(Geom_BSplineCurve) C = n.m == 0 ? symmetric_profile(n, c) : interpolated_profile(n, c, max_err);
+  Handle(Geom_BSplineCurve) C = n.m == 0 ? naca::symmetric_profile(n, c) : naca::interpolated_profile(n, c, max_err, "naca_wing");
   double ymax = 0;  // largest half thickness (radius of the round tip), chord units
   for (int i = 0; i <= 200000; ++i) ymax = std::max(ymax, n.yt(i / 200000.0));
   double tip_ext = round ? ymax * c : 0.0;
@@ -185,7 +90,7 @@ void run(StageContext& ctx) {
   try {
     gp_Pnt te_lo = C->Value(-1), te_up = C->Value(1);
     BRepBuilderAPI_MakeWire mw;
-    mw.Add(BRepBuilderAPI_MakeEdge(C));
+    for (auto& piece : naca::profile_pieces(C, sharp)) mw.Add(BRepBuilderAPI_MakeEdge(piece));
     if (!sharp) mw.Add(BRepBuilderAPI_MakeEdge(te_up, te_lo));
     TopoDS_Face section = BRepBuilderAPI_MakeFace(mw.Wire(), Standard_True);
     gp_Trsf down;
@@ -249,7 +154,7 @@ void run(StageContext& ctx) {
 }
 
 StageRegistrar reg({.kind = "naca_wing",
-                    .version = 1,
+                    .version = 2,  // 2: a sharp trailing edge is an edge between lower and upper faces
                     .summary = "NACA 4-digit wing with round tip, root on the wall of a box far field",
                     .libraries = {"OCCT " OCC_VERSION_COMPLETE},
                     .run = run});

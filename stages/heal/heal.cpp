@@ -10,7 +10,10 @@
 //   6. the fluid solid: the given closed shell(s) (outer minus inner), or a box around the body
 //      minus the body                                                      [fluid]
 //   7. same-domain faces and edges unified (ShapeUpgrade_UnifySameDomain)  [unify]
-//   8. checks: BRepCheck valid, every edge bounds exactly two faces, positive volume, no face
+//   8. checks: BRepCheck valid, every edge bounds exactly two faces, positive volume, no
+//      self-interference (faces of the solid crossing each other, or an edge or vertex lying
+//      on a face it does not bound: BOPAlgo_ArgumentAnalyzer in self-interference mode, i.e.
+//      BOPAlgo_CheckerSI; BRepCheck does not look for this) [check_self_intersection], no face
 //      narrower than the tolerance. Failure of any check is a StageError naming the entities.
 // Face tags: carried over from the input by geometry (a point inside each new face lies on the
 // old face), or, when the input has none (a raw STEP), by the box rule (cad::occt::tags_by_box).
@@ -21,6 +24,9 @@
 
 #include <nlohmann/json.hpp>
 
+#include <BOPAlgo_CheckerSI.hxx>
+#include <BOPDS_DS.hxx>
+#include <BOPDS_MapOfPair.hxx>
 #include <BRepAlgoAPI_Cut.hxx>
 #include <BRepBndLib.hxx>
 #include <BRepBuilderAPI_MakeSolid.hxx>
@@ -51,6 +57,8 @@
 #include <TopoDS_Solid.hxx>
 
 #include <algorithm>
+#include <array>
+#include <set>
 #include <cmath>
 #include <cstdio>
 #include <sstream>
@@ -169,6 +177,90 @@ double volume(const TopoDS_Shape& s) {
 }
 double diag_of(const Bnd_Box& b) { return b.IsVoid() ? 0 : std::sqrt(b.SquareExtent()); }
 
+// Self-interference of a closed solid: pairs of sub-shapes that interfere although they are
+// not adjacent, and faces whose surface crosses itself inside the face (BOPAlgo_CheckerSI, as
+// BOPAlgo_ArgumentAnalyzer runs it, but with its level: 5 "full" = also face/face and face
+// self-intersection, 4 "edges" = vertex/edge/face interferences up to edge/face only). With
+// `parallel` OCCT intersects on its thread pool: the set found is the same and is sorted here,
+// so the result does not depend on the thread count. Interferences are mapped to pairs of face
+// ids of `s` (an edge or vertex stands for the faces it bounds); the others are described.
+struct SelfInterference {
+  int pairs = 0;
+  bool aborted = false;  // OCCT's checker stopped with an error: the answer is unknown
+  std::vector<std::array<int, 2>> face_pairs;
+  std::vector<std::string> other;  // interferences not between two distinct faces, described
+};
+SelfInterference self_interference(const Shape& s, int level, bool parallel) {
+  BOPAlgo_CheckerSI ch;
+  TopTools_ListOfShape args;
+  args.Append(cad::occt::shape(s));
+  ch.SetArguments(args);
+  ch.SetNonDestructive(Standard_True);
+  ch.SetLevelOfCheck(level);
+  ch.SetRunParallel(parallel);
+  ch.Perform();
+  SelfInterference r;
+  r.aborted = ch.HasErrors();
+  const BOPDS_DS& ds = *ch.PDS();
+  std::vector<std::array<int, 2>> idx;  // DS indices, sorted: the map's order is a hash order
+  for (BOPDS_MapIteratorOfMapOfPair it(ds.Interferences()); it.More(); it.Next()) {
+    int n1, n2;
+    it.Value().Indices(n1, n2);
+    idx.push_back({std::min(n1, n2), std::max(n1, n2)});
+  }
+  std::sort(idx.begin(), idx.end());
+  std::vector<std::array<TopoDS_Shape, 2>> found;
+  for (auto& [n1, n2] : idx) found.push_back({ds.Shape(n1), ds.Shape(n2)});
+  const auto& I = s.impl();
+  auto faces_of = [&](const TopoDS_Shape& x) {
+    std::vector<int> f;
+    if (x.ShapeType() == TopAbs_FACE) {
+      if (int i = I.faces.FindIndex(x)) f.push_back(i - 1);
+    } else if (x.ShapeType() == TopAbs_EDGE) {
+      if (int i = I.edges.FindIndex(x)) f = s.edge_faces(i - 1);
+    } else {
+      TopTools_IndexedMapOfShape fs;
+      for (TopExp_Explorer ex(I.shape, TopAbs_FACE); ex.More(); ex.Next())
+        for (TopExp_Explorer v(ex.Current(), TopAbs_VERTEX); v.More(); v.Next())
+          if (v.Current().IsSame(x)) fs.Add(ex.Current());
+      for (int k = 1; k <= fs.Extent(); ++k)
+        if (int i = I.faces.FindIndex(fs(k))) f.push_back(i - 1);
+    }
+    return f;
+  };
+  std::set<std::array<int, 2>> pairs;
+  for (auto& both : found) {
+    ++r.pairs;
+    std::vector<TopoDS_Shape> sub = {both[0]};
+    if (!both[1].IsSame(both[0])) sub.push_back(both[1]);
+    bool distinct = false;
+    if (sub.size() >= 2)
+      for (int a : faces_of(sub[0]))
+        for (int b : faces_of(sub[1]))
+          if (a != b) distinct = true, pairs.insert({std::min(a, b), std::max(a, b)});
+    if (!distinct && r.other.size() < 8) {
+      std::string d;
+      if (sub.size() == 1 && sub[0].ShapeType() == TopAbs_FACE && !faces_of(sub[0]).empty()) {
+        r.other.push_back(cad::occt::describe_face(s, faces_of(sub[0])[0]) + " intersects itself");
+        continue;
+      }
+      for (auto& x : sub) {
+        static const char* type[] = {"compound", "compsolid", "solid", "shell", "face", "wire", "edge", "vertex", "shape"};
+        std::string fs;
+        for (int f : faces_of(x)) fs += (fs.empty() ? "" : ",") + std::to_string(f);
+        d += std::string(d.empty() ? "" : " with ") + type[std::min<int>(x.ShapeType(), 8)] + " of face(s) " + fs;
+        if (x.ShapeType() == TopAbs_VERTEX) {
+          gp_Pnt p = BRep_Tool::Pnt(TopoDS::Vertex(x));
+          d += " at " + pt({p.X(), p.Y(), p.Z()});
+        }
+      }
+      r.other.push_back(d);
+    }
+  }
+  r.face_pairs.assign(pairs.begin(), pairs.end());
+  return r;
+}
+
 void run(StageContext& ctx) {
   const auto& P = ctx.params();
   Shape in = Shape::load(ctx.input("shape").path);
@@ -181,7 +273,9 @@ void run(StageContext& ctx) {
   double tol = P.at("tolerance").get<double>();
   if (tol <= 0) tol = 1e-6 * diag;
   const bool sew = P.at("sew").get<bool>(), small_edges = P.at("fix_small_edges").get<bool>(),
-             small_faces = P.at("fix_small_faces").get<bool>(), unify = P.at("unify").get<bool>();
+             small_faces = P.at("fix_small_faces").get<bool>(), unify = P.at("unify").get<bool>(),
+             check_si = P.at("check_self_intersection").get<std::string>() != "off";
+  const int si_level = P.at("check_self_intersection").get<std::string>() == "edges" ? 4 : 5;
   const std::string fluid_mode = P.at("fluid").get<std::string>(), tag_mode = P.at("tags").get<std::string>();
   auto& st = ctx.stats();
   st["tolerance"] = tol;
@@ -368,6 +462,38 @@ void run(StageContext& ctx) {
   auto fe = out.free_edges(), me = out.multiple_edges();
   if (!fe.empty() || !me.empty())
     throw StageError(src + ": the fluid solid is not watertight:" + describe_edges(out, fe.empty() ? me : fe));
+  if (check_si) {
+    ctx.progress(0.9, "self-intersection");
+    SelfInterference si;
+    try {
+      si = self_interference(out, si_level, ctx.threads() > 1);
+    } catch (const Standard_Failure& e) {
+      throw StageError(src + ": OpenCASCADE failed checking the fluid solid for self-intersections (" +
+                       e.GetMessageString() + "); set check_self_intersection: off to skip the check");
+    }
+    st["self_intersections"] = si.pairs;
+    if (si.aborted) {
+      st["self_intersection_check_aborted"] = true;
+      ctx.log("heal: warning: OpenCASCADE's self-intersection checker stopped with an error; what it found before "
+              "is reported, the rest of the solid is unchecked");
+    }
+    if (si.pairs > 0) {
+      std::string m;
+      for (size_t i = 0; i < si.face_pairs.size() && i < 8; ++i)
+        m += "\n  - " + cad::occt::describe_face(out, si.face_pairs[i][0]) + " and " +
+             cad::occt::describe_face(out, si.face_pairs[i][1]);
+      if (si.face_pairs.size() > 8) m += "\n  - ... and " + std::to_string(si.face_pairs.size() - 8) + " more pairs";
+      for (auto& o : si.other) m += "\n  - " + o;
+      std::string ids;
+      std::set<int> fs;
+      for (auto& p : si.face_pairs) fs.insert(p.begin(), p.end());
+      for (int f : fs) ids += (ids.empty() ? "" : ", ") + std::to_string(f);
+      throw StageError(src + ": the fluid solid intersects itself (" + std::to_string(si.pairs) +
+                       " interference(s) between non-adjacent faces, edges or vertices that sewing and the boolean "
+                       "operations did not resolve)" + (ids.empty() ? std::string(":") : "; faces " + ids + ":") + m +
+                       "\nRepair the CAD in its source system (the named faces cross each other).");
+    }
+  }
   if (out.volume() <= 0)
     throw StageError(src + ": the fluid solid has volume " + fmt(out.volume()) + " <= 0 (inside out)");
   std::vector<int> slivers;
@@ -400,12 +526,13 @@ void run(StageContext& ctx) {
   st["face_tags"] = summary["face_tags"];
   st["tag_overrides"] = (int)P.at("tag_overrides").size();
   st["watertight"] = true;
+  st["self_intersection_check"] = P.at("check_self_intersection");
   out.save(ctx.output("shape", "shape"));
   ctx.progress(1.0, "done");
 }
 
 StageRegistrar reg({.kind = "heal",
-                    .version = 1,
+                    .version = 2,
                     .summary = "sew, fix and close the CAD into a watertight fluid solid; refuse what cannot be repaired",
                     .libraries = {"OCCT " OCC_VERSION_COMPLETE},
                     .run = run});

@@ -38,15 +38,17 @@ void check_closed(const Shape& s) {
   CHECK(s.volume() > 0);
 }
 double profile_error(const Shape& s, double m, double p, double t, bool sharp, double chord, double z, double inc) {
-  int wing = -1;
+  std::vector<int> wing;  // the wing surface: one face, or lower and upper with a sharp trailing edge
   for (int f : s.faces_with_tag(Tag::wall))
-    if (s.face_surface_type(f) == "extrusion") wing = f;
-  REQUIRE(wing >= 0);
+    if (s.face_surface_type(f) == "extrusion") wing.push_back(f);
+  REQUIRE(!wing.empty());
   double worst = 0;
   for (double x : {1e-6, 1e-4, 0.003, 0.0125, 0.05, 0.1, 0.2, 0.29, 0.3, 0.41, 0.5, 0.6, 0.77, 0.9, 0.99, 1.0})
     for (bool up : {true, false}) {
       auto q = naca(m, p, t, sharp, x, up, chord, z, inc);
-      worst = std::max(worst, s.project_to_face(wing, q).distance / chord);
+      double d = 1e300;
+      for (int f : wing) d = std::min(d, s.project_to_face(f, q).distance);
+      worst = std::max(worst, d / chord);
     }
   return worst;
 }
@@ -101,6 +103,14 @@ TEST_CASE("naca_wing: sharp trailing edge, flat tip, cambered 2412") {
   CHECK(ctx.stats_["profile_exact"] == false);
   CHECK(ctx.stats_["profile_max_error"].get<double>() < 1e-6);
   CHECK(profile_error(s, 0.02, 0.4, 0.12, true, 1.0, 0.5, 4.0) < 1e-6);
+  // the sharp trailing edge is an edge between the lower and upper faces; heal accepts the solid
+  // (a single closed face would touch itself along its seam: a self-intersection for OCCT)
+  int extrusions = 0;
+  for (int f : s.faces_with_tag(Tag::wall)) extrusions += s.face_surface_type(f) == "extrusion";
+  CHECK(extrusions == 2);
+  TestContext h("heal", {}, {ctx.artifact("shape")});
+  h.run();
+  CHECK(h.stats_["self_intersections"] == 0);
 }
 
 TEST_CASE("naca_wing: refusals") {
