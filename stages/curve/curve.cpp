@@ -332,7 +332,8 @@ class Curver {
   std::map<EdgeKey, std::size_t> edge_of_;
   std::map<FaceKey, std::size_t> face_of_;
   std::vector<std::vector<Chart>> charts_;  // per block (2D blocks on CAD faces), per element
-  std::vector<std::vector<int>> near_of_;   // per block, per element: index in near_ or -1
+  std::vector<std::vector<int>> near_of_;   // per block, per element: index in near_, -1 (far field) or kNearNoFollow
+  static constexpr int kNearNoFollow = -2;  // a near-field element while follow_wall is off
   std::vector<NearEl> near_;
   std::vector<FaceInfo> finfo_;
   std::vector<EdgeInfo> einfo_;
@@ -644,9 +645,9 @@ void Curver::build_entities() {
       }
       std::vector<std::size_t> eidx;
       element_edges(b, e, [&](std::size_t ei) { eidx.push_back(ei); });
+      if (!ne.walls.empty()) near_of_[bi][e] = O_.follow_wall ? int(near_.size()) : kNearNoFollow;
       if (!ne.walls.empty() && O_.follow_wall) {
         ne.block = std::uint32_t(bi), ne.el = e;
-        near_of_[bi][e] = int(near_.size());
         if (b.shape == Shape::Prism) ++R_.near_field_prisms;
         else if (ne.walls.size() > 1) ++R_.junction_hexes;
         else ++R_.near_field_hexes;
@@ -1095,7 +1096,7 @@ void Curver::check_quality(const Mesh& out) {
       R_.min_scaled_jacobian = std::min(R_.min_scaled_jacobian, q[bi][e].scaled_jacobian);
       if (q[bi][e].valid) continue;
       ++R_.invalid;
-      bool nf = !near_of_[bi].empty() && near_of_[bi][e] >= 0;
+      bool nf = !near_of_[bi].empty() && near_of_[bi][e] != -1;
       R_.invalid_near_field += nf;
       if (R_.invalid_elements.size() < 100) {
         InvalidElement ie;
@@ -1147,7 +1148,7 @@ Mesh Curver::run() {
   for (std::size_t bi = 0; bi < m_.blocks.size(); ++bi)
     if (model::dimension(m_.blocks[bi].shape) == 3)
       for (std::size_t e = 0; e < m_.blocks[bi].size(); ++e)
-        if (near_of_[bi][e] < 0) els.push_back({std::uint32_t(bi), e});
+        if (near_of_[bi][e] < 0) els.push_back({std::uint32_t(bi), e});  // near field: placed by rule 3
   pfor(els.size(), [&](std::size_t k) { interior(els[k].first, els[k].second); });
   R_.nodes_out = m_.num_nodes();
   R_.fallback_projections = fallback_;
