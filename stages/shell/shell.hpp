@@ -23,7 +23,13 @@
 // therefore have one shell point and neighbouring prisms stay conforming. The face grids are
 // built to agree with the edge fields near the edges (the direction is blended from the edge
 // value into the face normal over `blend_length` thicknesses), so the map is continuous up to
-// the grid's interpolation error.
+// the grid's interpolation error. Blending: a grid node's own normal n is turned by the
+// weighted mean of the edges' rotation vectors (each turning the face normal at the edge's
+// foot point into the edge value), weights smoothstep(1 − dist/R) / dist⁴, dist measured along
+// the face (3D length of the straight (u,v) path to the foot point), not through space, so that
+// the far side of a thin feature (upper/lower surface at a trailing edge in one face) does not
+// count, and opposite deflections (the two sides of a round tip near its pole) cancel instead of
+// averaging two opposite directions.
 //
 // ── Thickness ───────────────────────────────────────────────────────────────────────────
 // Requested T = `thickness` (a length, or × the largest side of the walls' bounding box when
@@ -151,7 +157,8 @@ IntersectionReport self_intersections(const std::vector<Vec3>& points,
 
 // Constrained Delaunay triangulation (CGAL, 2D) of points with constrained segments (index
 // pairs): all triangles of the convex hull as index triples, counter-clockwise. The caller keeps
-// the ones inside its domain. Throws std::runtime_error when CGAL fails (crossing constraints).
+// the ones inside its domain. Throws std::runtime_error when CGAL fails or when two segments
+// cross (CGAL would insert their intersection point, which has no input index).
 std::vector<std::array<std::int32_t, 3>> cdt2(const std::vector<std::array<double, 2>>& points,
                                               const std::vector<std::array<std::int32_t, 2>>& segments);
 

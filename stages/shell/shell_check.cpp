@@ -87,12 +87,10 @@ std::vector<std::array<std::int32_t, 3>> cdt2(const std::vector<std::array<doubl
   std::vector<CDT::Vertex_handle> vh(points.size());
   for (std::size_t i = 0; i < points.size(); ++i) {
     vh[i] = cdt.insert(K::Point_2(points[i][0], points[i][1]));
-    if (vh[i]->info() == 0 && vh[i]->point() == K::Point_2(points[i][0], points[i][1]) && i > 0) {
-      // a fresh vertex has info 0 (default): set it; a duplicate keeps the first index
-    }
   }
   // assign indices in input order, keeping the first index for duplicates
   for (auto v = cdt.finite_vertices_begin(); v != cdt.finite_vertices_end(); ++v) v->info() = -1;
+  const std::size_t nin = cdt.number_of_vertices();  // distinct input points
   for (std::size_t i = 0; i < points.size(); ++i)
     if (vh[i]->info() < 0) vh[i]->info() = static_cast<std::int32_t>(i);
   try {
@@ -101,6 +99,11 @@ std::vector<std::array<std::int32_t, 3>> cdt2(const std::vector<std::array<doubl
   } catch (const std::exception& e) {
     throw std::runtime_error(std::string("constrained Delaunay triangulation failed: ") + e.what());
   }
+  // crossing constraints make CGAL insert their intersection points (Exact_predicates_tag):
+  // such a vertex has no input index, and the caller's boundary loops are not a valid domain
+  if (cdt.number_of_vertices() != nin)
+    throw std::runtime_error("constrained Delaunay triangulation: " + std::to_string(cdt.number_of_vertices() - nin) +
+                             " boundary segment crossing(s) in (u,v)");
   std::vector<std::array<std::int32_t, 3>> out;
   for (auto f = cdt.finite_faces_begin(); f != cdt.finite_faces_end(); ++f)
     out.push_back({f->vertex(0)->info(), f->vertex(1)->info(), f->vertex(2)->info()});

@@ -383,7 +383,9 @@ struct Stage {
       for (int end = 0; end < 2; ++end) {
         int v = end ? I.v1 : I.v0;
         if (v < 0 || !v_has[v]) continue;
-        double R = blend * v_t[v];
+        // within at most 30% of the edge from each end: on a short edge (the 0.004-long
+        // trailing-edge arc of a rounded tip) the middle keeps its own averaged normal
+        double R = std::min(blend * v_t[v], 0.3 * L);
         for (std::size_t k = 0; k < n; ++k) {
           double a = end ? L - I.arc[k] : I.arc[k];
           double beta = R > 0 ? smoothstep(1 - a / R) : (a == 0 ? 1.0 : 0.0);
@@ -441,8 +443,15 @@ struct Stage {
           Vec3 x = v3(shape.face_point(f, u, v));
           Vec3 nrm = fluid_normal(f, u, v);
           double t = thickness_at(x, {f});
-          double B = 0;
+          // d = R(n): the node's own normal turned by the blended rotation of the nearby edges.
+          // Edge e contributes the rotation vector r_e that turns the face's own normal n_e at the
+          // foot point into the edge value d_e, weighted by beta_e w_e / sum w (inverse-distance
+          // weights, so that at an edge its own rotation wins and d = d_e there). A rotation,
+          // not a direction, is blended: a tangent-continuous edge (d_e = n_e) adds nothing,
+          // and where two edges' directions nearly cancel (near the pole of a round tip) the
+          // node keeps its own normal instead of an arbitrary mean.
           Vec3 de{0, 0, 0};
+          double wsum = 0;
           for (auto& ne_ : edges) {
             const EdgeInfo& I = *ne_.I;
             // nearest point of the station polyline
@@ -457,25 +466,55 @@ struct Stage {
               if (dd < best) best = dd, bk = k, bs = s;
             }
             double te = (1 - bs) * I.th[bk] + bs * I.th[bk + 1];
+            double R = blend * std::max(te, 1e-300);
+            if ((I.junction ? std::max(0.0, best - te) : best) >= R) continue;
+            // The distance along the face, not through space: the length of the straight (u,v)
+            // path to the foot point. Across a thin feature (the upper and lower surfaces of a
+            // trailing edge in one face) the 3D distance is small but the path is long, and
+            // blending the far side's edge direction would turn the shell sideways.
+            const auto& uva = I.uv[bk].at(f);
+            const auto& uvb = I.uv[bk + 1].at(f);
+            double path = surface_path(f, u, v, (1 - bs) * uva.u + bs * uvb.u, (1 - bs) * uva.v + bs * uvb.v, x);
+            best = std::max(best, path);
             Vec3 dk = unit(add(mul((*ne_.d)[bk], 1 - bs), mul((*ne_.d)[bk + 1], bs)));
             double dist = I.junction ? std::max(0.0, best - te) : best;
-            double R = blend * std::max(te, 1e-300);
             double beta = smoothstep(1 - dist / R);
             if (beta <= 0) continue;
-            B = std::max(B, beta);
-            // inverse-distance weights: on an edge its own value wins (thin faces such as a
-            // blunt trailing edge see both long edges within the blend length)
-            double w = beta / (best * best + 1e-12 * h * h);
-            de = add(de, mul(dk, w));
+            Vec3 nk = unit(add(mul(I.nu[bk].at(f), 1 - bs), mul(I.nu[bk + 1].at(f), bs)));
+            Vec3 ax = cross(nk, dk);
+            double sn = norm(ax), ang = std::atan2(sn, dot(nk, dk));
+            double b2 = best * best + 1e-12 * h * h, w = 1 / (b2 * b2);
+            if (sn > 1e-12) de = add(de, mul(ax, beta * w * ang / sn));
+            wsum += w;
           }
           Vec3 d = nrm;
-          if (B > 0) d = unit(add(mul(nrm, 1 - B), mul(unit(de), B)));
+          if (wsum > 0) {
+            Vec3 rv = mul(de, 1 / wsum);
+            double th = norm(rv);
+            if (th > 1e-12) {  // Rodrigues
+              Vec3 k = mul(rv, 1 / th);
+              d = unit(add(add(mul(nrm, std::cos(th)), mul(cross(k, nrm), std::sin(th))), mul(k, dot(k, nrm) * (1 - std::cos(th)))));
+            }
+          }
           double* q = &G.data[(std::size_t(j) * G.nu + i) * 4];
           q[0] = t, q[1] = d[0], q[2] = d[1], q[3] = d[2];
         }
       lipschitz_grid(f, G);
       grids[f] = std::move(G);
     }
+  }
+
+  // 3D length of the straight (u,v) segment from (u0,v0) (at x0) to (u1,v1) on face f, 8 chords
+  double surface_path(int f, double u0, double v0, double u1, double v1, const Vec3& x0) const {
+    double len = 0;
+    Vec3 prev = x0;
+    for (int k = 1; k <= 8; ++k) {
+      double s = k / 8.0;
+      Vec3 q = v3(shape.face_point(f, u0 + s * (u1 - u0), v0 + s * (v1 - v0)));
+      len += norm(sub(q, prev));
+      prev = q;
+    }
+    return len;
   }
 
   // t_i <= t_j + g |x_i - x_j| between 8-neighbours of the grid (forward/backward sweeps):

@@ -90,6 +90,110 @@ struct Cut {
   std::uint32_t node = kNone;
 };
 
+// The plane a face is triangulated in: (u,v) -> (U,V) with V the arc length along v (of the
+// mean |S_v|) and U the arc length along u on each line v = const (|S_u| integrated along the
+// line, tabulated on 65 lines and interpolated between them), or the same with u and v swapped
+// when |S_v| varies more across u than |S_u| across v. Delaunay in (U,V) is then close to
+// Delaunay on the surface for lofted, ruled and revolved faces: a wing whose chordwise
+// parameter is cosine-spaced (|S_u| -> 0 at the leading edge), a rounded tip revolved about
+// the chord line (|S_u| = radius, from the tip's full thickness down to a 0.00125-radius tube
+// at a blunt trailing edge). Each line's map is strictly increasing (a floor of 2% of the
+// mean speed), so the boundary loops keep their topology and the map inverts exactly.
+class Reparam {
+ public:
+  Reparam(const cad::Shape& S, int f) {
+    auto b = S.face_uv_bounds(f);
+    lo_ = {b.u0, b.v0}, hi_ = {b.u1, b.v1};
+    for (int k = 0; k < 2; ++k)
+      if (!(hi_[k] > lo_[k])) hi_[k] = lo_[k] + 1;
+    // speeds on a grid: sp[k][i][j] = |dS/d(param k)| at u_i, v_j
+    std::vector<double> su((N + 1) * (N + 1)), sv((N + 1) * (N + 1));
+    for (int i = 0; i <= N; ++i)
+      for (int j = 0; j <= N; ++j) {
+        auto d = S.face_eval(f, at(0, i), at(1, j));
+        su[i * (N + 1) + j] = std::sqrt(d.du.x * d.du.x + d.du.y * d.du.y + d.du.z * d.du.z);
+        sv[i * (N + 1) + j] = std::sqrt(d.dv.x * d.dv.x + d.dv.y * d.dv.y + d.dv.z * d.dv.z);
+      }
+    // variation of the line means: how much the u-speed changes from one v-line to another
+    auto spread = [&](const std::vector<double>& sp, bool along_u) {
+      double mn = INFINITY, mx = 0;
+      for (int l = 0; l <= N; ++l) {
+        double m = 0;
+        for (int k = 0; k <= N; ++k) m += along_u ? sp[k * (N + 1) + l] : sp[l * (N + 1) + k];
+        mn = std::min(mn, m), mx = std::max(mx, m);
+      }
+      return mx / std::max(mn, 1e-300);
+    };
+    swap_ = spread(sv, false) > spread(su, true);
+    // a = the parameter mapped line by line, b = the separable one
+    const std::vector<double>& sa = swap_ ? sv : su;
+    const std::vector<double>& sb = swap_ ? su : sv;
+    int ia = swap_ ? 1 : 0;
+    auto sp = [&](const std::vector<double>& v, int a, int bb) { return swap_ ? v[bb * (N + 1) + a] : v[a * (N + 1) + bb]; };
+    double mean_a = 0, mean_b = 0;
+    for (double x : sa) mean_a += x / sa.size();
+    for (double x : sb) mean_b += x / sb.size();
+    if (!(mean_a > 0)) mean_a = 1;
+    if (!(mean_b > 0)) mean_b = 1;
+    // B(b): arc length of the mean b-speed
+    B_.assign(N + 1, 0.0);
+    std::vector<double> mb(N + 1, 0.0);
+    for (int j = 0; j <= N; ++j) {
+      for (int i = 0; i <= N; ++i) mb[j] += sp(sb, i, j) / (N + 1);
+      mb[j] = std::max(mb[j], 0.02 * mean_b);
+    }
+    double hb = (hi_[1 - ia] - lo_[1 - ia]) / N, ha = (hi_[ia] - lo_[ia]) / N;
+    for (int j = 1; j <= N; ++j) B_[j] = B_[j - 1] + 0.5 * (mb[j - 1] + mb[j]) * hb;
+    // A_j(a): arc length along a on line b_j
+    A_.assign((N + 1) * (N + 1), 0.0);
+    for (int j = 0; j <= N; ++j)
+      for (int i = 1; i <= N; ++i) {
+        double s0 = std::max(sp(sa, i - 1, j), 0.02 * mean_a), s1 = std::max(sp(sa, i, j), 0.02 * mean_a);
+        A_[j * (N + 1) + i] = A_[j * (N + 1) + i - 1] + 0.5 * (s0 + s1) * ha;
+      }
+    ia_ = ia;
+  }
+  std::array<double, 2> fwd(double u, double v) const {
+    double a = ia_ == 0 ? u : v, b = ia_ == 0 ? v : u;
+    double tb = (b - lo_[1 - ia_]) / (hi_[1 - ia_] - lo_[1 - ia_]) * N;
+    double ta = (a - lo_[ia_]) / (hi_[ia_] - lo_[ia_]) * N;
+    double Bv = interp(B_.data(), tb);
+    int j = std::clamp(static_cast<int>(std::floor(tb)), 0, N - 1);
+    double w = std::clamp(tb - j, 0.0, 1.0);
+    double Av = (1 - w) * interp(&A_[j * (N + 1)], ta) + w * interp(&A_[(j + 1) * (N + 1)], ta);
+    return ia_ == 0 ? std::array<double, 2>{Av, Bv} : std::array<double, 2>{Bv, Av};
+  }
+  std::array<double, 2> inv(double U, double V) const {
+    double Av = ia_ == 0 ? U : V, Bv = ia_ == 0 ? V : U;
+    double tb = inverse(B_.data(), Bv);
+    int j = std::clamp(static_cast<int>(std::floor(tb)), 0, N - 1);
+    double w = std::clamp(tb - j, 0.0, 1.0);
+    std::vector<double> row(N + 1);
+    for (int i = 0; i <= N; ++i) row[i] = (1 - w) * A_[j * (N + 1) + i] + w * A_[(j + 1) * (N + 1) + i];
+    double ta = inverse(row.data(), Av);
+    double a = lo_[ia_] + ta / N * (hi_[ia_] - lo_[ia_]), b = lo_[1 - ia_] + tb / N * (hi_[1 - ia_] - lo_[1 - ia_]);
+    return ia_ == 0 ? std::array<double, 2>{a, b} : std::array<double, 2>{b, a};
+  }
+
+ private:
+  static constexpr int N = 64;
+  std::array<double, 2> lo_{}, hi_{};
+  bool swap_ = false;
+  int ia_ = 0;
+  std::vector<double> B_, A_;
+  double at(int k, int i) const { return lo_[k] + (hi_[k] - lo_[k]) * i / N; }
+  // piecewise-linear table y[0..N] at fractional index t (linear extrapolation outside)
+  static double interp(const double* y, double t) {
+    int i = std::clamp(static_cast<int>(std::floor(t)), 0, N - 1);
+    return y[i] + (t - i) * (y[i + 1] - y[i]);
+  }
+  static double inverse(const double* y, double Y) {
+    int i = static_cast<int>(std::upper_bound(y, y + N + 1, Y) - y) - 1;
+    i = std::clamp(i, 0, N - 1);
+    return i + (Y - y[i]) / (y[i + 1] - y[i]);
+  }
+};
+
 class Builder {
  public:
   Builder(const cad::Shape& s, const shell::ShellData& sh, const balance::Divisions& dv, const Options& o, Report& r,
@@ -516,56 +620,7 @@ void Builder::mesh_face(int f) {
     if (raw.size() >= 3) loops.push_back(std::move(raw));
   }
   if (loops.empty()) return;
-  // Separable arc-length reparameterisation (u,v) -> (U(u), V(v)), U' = mean over v of |S_u|:
-  // Delaunay in (U,V) is close to Delaunay on the surface for the usual lofted and revolved
-  // faces (e.g. a wing whose chordwise parameter is cosine-spaced, where |S_u| -> 0 at the
-  // leading edge and triangles that are good in 3D are needles in (u,v)).
-  auto bnd = S.face_uv_bounds(f);
-  struct Map1 {
-    std::vector<double> a, A;  // parameter stations and their arc-length images
-    double fwd(double x) const {
-      if (x <= a.front()) return A.front() + (x - a.front()) * (A[1] - A[0]) / (a[1] - a[0]);
-      if (x >= a.back()) return A.back() + (x - a.back()) * (A.back() - A[A.size() - 2]) / (a.back() - a[a.size() - 2]);
-      std::size_t i = std::upper_bound(a.begin(), a.end(), x) - a.begin();
-      return A[i - 1] + (x - a[i - 1]) * (A[i] - A[i - 1]) / (a[i] - a[i - 1]);
-    }
-    double inv(double X) const {
-      if (X <= A.front()) return a.front() + (X - A.front()) * (a[1] - a[0]) / (A[1] - A[0]);
-      if (X >= A.back()) return a.back() + (X - A.back()) * (a.back() - a[a.size() - 2]) / (A.back() - A[A.size() - 2]);
-      std::size_t i = std::upper_bound(A.begin(), A.end(), X) - A.begin();
-      return a[i - 1] + (X - A[i - 1]) * (a[i] - a[i - 1]) / (A[i] - A[i - 1]);
-    }
-  };
-  const int NS = 64;
-  Map1 MU, MV;
-  {
-    std::vector<double> du(NS + 1, 0.0), dv(NS + 1, 0.0);
-    for (int i = 0; i <= NS; ++i)
-      for (int j = 0; j <= NS; ++j) {
-        double u = bnd.u0 + (bnd.u1 - bnd.u0) * i / NS, v = bnd.v0 + (bnd.v1 - bnd.v0) * j / NS;
-        auto d = S.face_eval(f, u, v);
-        du[i] += norm(v3(d.du)) / (NS + 1);
-        auto d2 = S.face_eval(f, bnd.u0 + (bnd.u1 - bnd.u0) * j / NS, bnd.v0 + (bnd.v1 - bnd.v0) * i / NS);
-        dv[i] += norm(v3(d2.dv)) / (NS + 1);
-      }
-    double mu = 0, mv = 0;
-    for (int i = 0; i <= NS; ++i) mu += du[i] / (NS + 1), mv += dv[i] / (NS + 1);
-    if (!(mu > 0)) mu = 1;
-    if (!(mv > 0)) mv = 1;
-    MU.a.resize(NS + 1), MU.A.resize(NS + 1), MV.a.resize(NS + 1), MV.A.resize(NS + 1);
-    for (int i = 0; i <= NS; ++i) {
-      MU.a[i] = bnd.u0 + (bnd.u1 - bnd.u0) * i / NS;
-      MV.a[i] = bnd.v0 + (bnd.v1 - bnd.v0) * i / NS;
-      du[i] = std::max(du[i], 0.02 * mu), dv[i] = std::max(dv[i], 0.02 * mv);  // stays strictly monotone
-    }
-    MU.A[0] = MV.A[0] = 0;
-    for (int i = 1; i <= NS; ++i) {
-      MU.A[i] = MU.A[i - 1] + 0.5 * (du[i - 1] + du[i]) * (MU.a[i] - MU.a[i - 1]);
-      MV.A[i] = MV.A[i - 1] + 0.5 * (dv[i - 1] + dv[i]) * (MV.a[i] - MV.a[i - 1]);
-    }
-    if (!(bnd.u1 > bnd.u0)) MU.a = {0, 1}, MU.A = {0, 1};
-    if (!(bnd.v1 > bnd.v0)) MV.a = {0, 1}, MV.A = {0, 1};
-  }
+  Reparam RP(S, f);
   detail::UVMeshInput in;
   std::vector<std::uint32_t> bnode;
   std::vector<V3> bx;
@@ -573,7 +628,7 @@ void Builder::mesh_face(int f) {
   for (auto& l : loops) {
     int first = static_cast<int>(in.uv.size());
     for (std::size_t i = 0; i < l.size(); ++i) {
-      in.uv.push_back({MU.fwd(l[i].uv[0]), MV.fwd(l[i].uv[1])});
+      in.uv.push_back(RP.fwd(l[i].uv[0], l[i].uv[1]));
       bnode.push_back(l[i].node);
       bx.push_back(X(l[i].node));
       in.segments.push_back({first + static_cast<int>(i), first + static_cast<int>((i + 1) % l.size())});
@@ -586,9 +641,13 @@ void Builder::mesh_face(int f) {
   const bool is_wall = wall[f] != 0;
   const double hmax = is_wall ? O.max_size : O.farfield_size;
   const double theta = O.turn_angle_deg * M_PI / 180;
-  in.point = [&](double u, double v) { return v3(S.face_point(f, MU.inv(u), MV.inv(v))); };
+  in.point = [&](double U, double V) {
+    auto q = RP.inv(U, V);
+    return v3(S.face_point(f, q[0], q[1]));
+  };
   in.size = [&](double u, double v) {
-    double uu = MU.inv(u), vv = MV.inv(v);
+    auto q = RP.inv(u, v);
+    double uu = q[0], vv = q[1];
     V3 x = v3(S.face_point(f, uu, vv));
     double h = hmax;  // curvature: the turn-angle rule on the vertex normals (in.normal below)
     (void)vv;
@@ -610,11 +669,13 @@ void Builder::mesh_face(int f) {
     std::ostringstream o;
     o << "face " << f << ": loops";
     for (auto& l : loops) o << " " << l.size();
-    o << " bounds " << bnd.u0 << " " << bnd.u1 << " " << bnd.v0 << " " << bnd.v1;
     for (auto& l : loops) for (auto& p : l) o << " [" << p.uv[0] << "," << p.uv[1] << "]";
     log(o.str());
   }
-  in.normal = [&](double u, double v) { return v3(S.face_normal(f, MU.inv(u), MV.inv(v))); };
+  in.normal = [&](double U, double V) {
+    auto q = RP.inv(U, V);
+    return v3(S.face_normal(f, q[0], q[1]));
+  };
   in.max_turn = theta;
   in.min_length = O.min_size;
   in.refine_ratio = O.refine_ratio;
@@ -632,7 +693,8 @@ void Builder::mesh_face(int f) {
   std::vector<std::uint32_t> node(out.uv.size(), kNone);
   for (std::size_t i = 0; i < bnode.size(); ++i) node[i] = bnode[i];
   for (std::size_t i = bnode.size(); i < out.uv.size(); ++i) {
-    double u = MU.inv(out.uv[i][0]), v = MV.inv(out.uv[i][1]);
+    auto q = RP.inv(out.uv[i][0], out.uv[i][1]);
+    double u = q[0], v = q[1];
     node[i] = mk(v3(S.face_point(f, u, v)), 2, f + 1, u, v);
   }
   for (auto& t : out.tris) {
@@ -641,8 +703,9 @@ void Builder::mesh_face(int f) {
     // orient out of the fluid (the face normal points out of the fluid solid)
     V3 a = X(g[0]), b = X(g[1]), c = X(g[2]);
     V3 nrm = cross(sub(b, a), sub(c, a));
-    double cu = MU.inv((out.uv[t[0]][0] + out.uv[t[1]][0] + out.uv[t[2]][0]) / 3);
-    double cvv = MV.inv((out.uv[t[0]][1] + out.uv[t[1]][1] + out.uv[t[2]][1]) / 3);
+    auto cq = RP.inv((out.uv[t[0]][0] + out.uv[t[1]][0] + out.uv[t[2]][0]) / 3,
+                     (out.uv[t[0]][1] + out.uv[t[1]][1] + out.uv[t[2]][1]) / 3);
+    double cu = cq[0], cvv = cq[1];
     V3 fn = v3(S.face_normal(f, cu, cvv));
     if (dot(nrm, fn) < 0) std::swap(g[1], g[2]);
     face_tris[f].push_back(g);
@@ -754,7 +817,7 @@ void Builder::volume() {
       pface.push_back(f);
     }
   }
-  untangle(P);
+  if (!std::getenv("MESHFLOW_SWEEP_NO_UNTANGLE")) untangle(P);
   auto& prisms = m.block(model::Shape::Prism, 1, 3, 1);
   for (std::size_t i = 0; i < P.size(); ++i) {
     valid_or_flip(model::Shape::Prism, P[i], {0, 2, 1, 3, 5, 4}, "prism on wall face " + std::to_string(pface[i]));

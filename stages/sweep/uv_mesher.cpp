@@ -118,9 +118,14 @@ UVMeshOutput mesh_uv(const UVMeshInput& in) {
   } catch (const std::exception& e) {
     throw std::runtime_error(std::string("the boundary loops cross in the parameter plane (") + e.what() + ")");
   }
-  if (static_cast<std::size_t>(cdt.number_of_vertices()) != in.uv.size())
-    throw std::runtime_error("the boundary has coincident or crossing points in the parameter plane (" +
-                             std::to_string(in.uv.size() - cdt.number_of_vertices()) + " merged)");
+  {
+    long nv = static_cast<long>(cdt.number_of_vertices()), ni = static_cast<long>(in.uv.size());
+    if (nv < ni)
+      throw std::runtime_error("the boundary has " + std::to_string(ni - nv) + " coincident points in the parameter plane");
+    if (nv > ni)
+      throw std::runtime_error("the boundary loops cross themselves or each other in the parameter plane (" +
+                               std::to_string(nv - ni) + " crossings; e.g. a junction strip wider than the face allows)");
+  }
 
   // ── refinement ──
   for (int pass = 0; pass < in.max_passes; ++pass) {
@@ -172,6 +177,19 @@ UVMeshOutput mesh_uv(const UVMeshInput& in) {
                                 std::sqrt(CGAL::squared_distance(f->vertex(2)->point(), f->vertex(0)->point()))});
         bool near = false;
         for (int i = 0; i < 3; ++i) near |= std::sqrt(CGAL::squared_distance(p, f->vertex(i)->point())) < 1e-3 * lmin;
+        if (near) continue;
+        // nor a point closer than h/4 (in 3D) to a vertex of the triangle it falls in or of the
+        // bad triangle: it would only make a tiny edge
+        auto x = in.point(p.x(), p.y());
+        auto lf2 = cdt.locate(p, f);
+        for (CDT::Face_handle fh : std::array<CDT::Face_handle, 2>{f, lf2}) {
+          if (cdt.is_infinite(fh)) continue;
+          for (int i = 0; i < 3; ++i) {
+            auto vv = fh->vertex(i);
+            if (cdt.is_infinite(vv)) continue;
+            near |= dist3(x, p3[vv->info()]) < 0.25 * std::min(h, L);
+          }
+        }
         if (near) continue;
       }
       cand.push_back({big ? L / h : 1 - q, p, f});

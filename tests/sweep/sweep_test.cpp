@@ -5,7 +5,12 @@
 // a refusal naming the stage when the shell is too thick to sweep.
 #include <doctest/doctest.h>
 
+#include "engine/stage.hpp"
+#include "stages/balance/balance.hpp"
+#include "stages/cad/cad.hpp"
 #include "stages/io/mesh_io.hpp"
+#include "stages/shell/shell.hpp"
+#include "stages/sweep/sweep.hpp"
 #include "stages/model/quality.hpp"
 #include "support.hpp"
 
@@ -124,13 +129,39 @@ TEST_CASE("sweep and tet on a small NACA wing: the linear hybrid mesh is valid, 
   CHECK(mftest::read_text(dir / "out/sweep-test/mesh.msh") == first);
 }
 
-TEST_CASE("sweep refuses a shell too thick to sweep, naming the stage and what to do") {
-  fs::path dir = mftest::temp_dir("sweep-thick");
-  fs::path w = write_workflow(dir, "0.6");
-  auto r = mftest::sh("cd " + dir.string() + " && " + std::string(MESHFLOW_EXE) + " run " + w.string() + " 2>&1");
+TEST_CASE("sweep refuses divisions that do not belong to the shell, naming the edge and what to do") {
+  // the pipeline up to balance, then sweep called on its artifacts with the junction edge's
+  // divisions removed (what a balance artifact from another shell would look like)
+  fs::path dir = mftest::temp_dir("sweep-bad");
+  std::string w = kWorkflow;
+  w.replace(w.find("THICK"), 5, "0.05");
+  w = w.substr(0, w.find("  sweep:")) + "outputs:\n  shape: {from: heal}\n  shell: {from: shell}\n  divisions: {from: balance}\n";
+  mftest::write_text(dir / "w.yaml", w);
+  auto r = mftest::sh("cd " + dir.string() + " && " + std::string(MESHFLOW_EXE) + " run w.yaml 2>&1");
   INFO(r.out);
-  CHECK(r.code != 0);
-  bool named = r.out.find("sweep") != std::string::npos || r.out.find("shell") != std::string::npos;
-  CHECK(named);
-  CHECK(!fs::exists(dir / "out/sweep-test/mesh.msh"));
+  REQUIRE(r.code == 0);
+  auto shape = meshflow::cad::Shape::load(dir / "out/sweep-test/shape.mfshape");
+  auto shell = meshflow::shell::read(dir / "out/sweep-test/shell.mfshell");
+  auto div = meshflow::balance::read(dir / "out/sweep-test/divisions.mfdiv");
+  meshflow::sweep::Options o;
+  meshflow::sweep::Report rep;
+  // as read, it sweeps
+  auto m = meshflow::sweep::sweep_mesh(shape, shell, div, o, rep);
+  CHECK(rep.prisms > 0);
+  // without the junction edge's wall divisions it refuses, naming the entry and the remedy
+  auto H = nlohmann::json::parse(shell.header);
+  std::string missing;
+  for (auto& b : H.at("blocks"))
+    if (b.at("kind") == "hex_junction") missing = "w" + std::to_string(b.at("edge").get<int>());
+  REQUIRE(!missing.empty());
+  std::erase_if(div.edges, [&](const meshflow::balance::EdgeDivision& e) { return e.name == missing; });
+  meshflow::sweep::Report rep2;
+  try {
+    meshflow::sweep::sweep_mesh(shape, shell, div, o, rep2);
+    FAIL("sweep accepted divisions without " << missing);
+  } catch (const meshflow::StageError& e) {
+    std::string what = e.what();
+    CHECK(what.find(missing) != std::string::npos);
+    CHECK(what.find("re-run balance") != std::string::npos);
+  }
 }
