@@ -419,6 +419,19 @@ Report optimise_mesh(Mesh& m, const cad::Shape& shape, const Options& opt, int t
       const double per[2] = {fb.u1 - fb.u0, fb.v1 - fb.v0};
       u.home0 = {fb.u0, fb.v0};
       u.home1 = {fb.u1, fb.v1};
+      // a unit given in a chart shifted by whole periods (the first free node outside the
+      // face's bounds, e.g. u in [-2pi, 0] on a cylinder): shift all of it back when the
+      // shifted parameters give the same point
+      for (int c = 0; c < 2; ++c) {
+        if (per[c] <= 0) continue;
+        double q[2] = {u.p0[0], u.p0[1]};
+        double k = std::floor((q[c] - u.home0[c]) / per[c]);
+        if (k == 0 || std::abs(k) > 2) continue;
+        q[c] -= k * per[c];
+        if (norm(point(shape, u, q) - node(m, u.free[0])) > pos_tol) continue;
+        for (std::size_t i = 0; i < nf; ++i) u.p0[i * 2 + c] -= k * per[c];
+        u.unwrapped = true;
+      }
       // unwrap parameters across a periodic seam (relative to the first free node)
       for (std::size_t i = 1; i < nf; ++i)
         for (int c = 0; c < 2; ++c) {

@@ -264,3 +264,35 @@ TEST_CASE("refusals: a linear mesh, nodes on the CAD without parameters, ids not
   wrong.node_entity_tag[5] = 7;
   CHECK_THROWS_WITH_AS(opt::optimise_mesh(wrong, s, {}), doctest::Contains("do not belong together"), meshflow::StageError);
 }
+
+TEST_CASE("parameters in a chart shifted by a period (u - 2 pi) are unwrapped: same optimised positions, stored within the bounds") {
+  const Shape& s = shapes().cylinder;
+  opttest::Distortion d;
+  d.bunch = 0.4, d.bump = 0.08, d.interior_u = 0.05, d.interior_v = 0.05;
+  Mesh plain = opttest::cylinder_quads(s, 4, 7, 2, d);
+  Mesh shifted = plain;
+  const double kTwoPi = 6.283185307179586;
+  std::size_t n_shifted = 0;
+  for (std::size_t i = 0; i < shifted.num_nodes(); ++i)
+    if (shifted.node_entity_dim[i] == 2 && shifted.node_u[i] > 0.5 * kTwoPi) shifted.node_u[i] -= kTwoPi, ++n_shifted;
+  REQUIRE(n_shifted > 20);
+  auto rp = opt::optimise_mesh(plain, s, {}, 1);
+  auto rs = opt::optimise_mesh(shifted, s, {}, 1);
+  CHECK(rp.unwrapped_seam == 0);
+  CHECK(rs.unwrapped_seam > 0);
+  CHECK(rs.skipped_seam + rs.skipped_inconsistent == 0);
+  CHECK(rs.faces == rp.faces);
+  CHECK(rs.surface_edges == rp.surface_edges);
+  double diff = 0;
+  for (std::size_t i = 0; i < plain.num_nodes(); ++i)
+    diff = std::max(diff, std::hypot(plain.x[i] - shifted.x[i], plain.y[i] - shifted.y[i], plain.z[i] - shifted.z[i]));
+  CHECK(diff < 1e-8);
+  auto fb = s.face_uv_bounds(0);
+  for (std::size_t i = 0; i < shifted.num_nodes(); ++i)
+    if (shifted.node_entity_dim[i] == 2 && (shifted.x[i] != plain.x[i] || shifted.y[i] != plain.y[i])) {
+      CHECK(shifted.node_u[i] >= fb.u0 - 1e-12);
+      CHECK(shifted.node_u[i] <= fb.u1 + 1e-12);
+    }
+  CHECK(opttest::max_param_error(shifted, s) < 1e-7);
+  CHECK(rs.energy_after == doctest::Approx(rp.energy_after).epsilon(1e-9));
+}
