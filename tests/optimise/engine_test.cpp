@@ -3,6 +3,8 @@
 // output, determinism across thread budgets, --set re-runs only optimise, and a refused input.
 #include <doctest/doctest.h>
 
+#include "support.hpp"
+
 #include "builders.hpp"
 #include "engine/cli.hpp"
 #include "engine/stage.hpp"
@@ -36,23 +38,8 @@ meshflow::StageRegistrar source_reg({
     .schema = R"({"type": "object", "additionalProperties": false, "properties": {
         "order": {"type": "integer", "minimum": 1, "maximum": 6, "default": 3, "description": "order"}}})"});
 
-struct Cli {
-  int code;
-  std::string out, err;
-};
-Cli run(std::vector<std::string> args) {
-  args.insert(args.begin(), "meshflow");
-  std::vector<char*> argv;
-  for (auto& s : args) argv.push_back(s.data());
-  argv.push_back(nullptr);
-  std::ostringstream out, err;
-  auto* o = std::cout.rdbuf(out.rdbuf());
-  auto* e = std::cerr.rdbuf(err.rdbuf());
-  int code = meshflow::cli_main(int(args.size()), argv.data());
-  std::cout.rdbuf(o);
-  std::cerr.rdbuf(e);
-  return {code, out.str(), err.str()};
-}
+using mftest::Cli;
+Cli run(std::vector<std::string> args) { return mftest::run_cli(std::move(args)); }
 
 std::string slurp(const fs::path& p) {
   std::ifstream in(p, std::ios::binary);

@@ -3,6 +3,8 @@
 // across thread budgets, and a refused input.
 #include <doctest/doctest.h>
 
+#include "support.hpp"
+
 #include "builders.hpp"
 #include "engine/cli.hpp"
 #include "engine/stage.hpp"
@@ -40,23 +42,8 @@ meshflow::StageRegistrar source_reg({
         "segments": {"type": "integer", "minimum": 4, "maximum": 64, "default": 8, "description": "segments around"},
         "walls": {"type": "boolean", "default": true, "description": "keep the wall group"}}})"});
 
-struct Cli {
-  int code;
-  std::string out, err;
-};
-Cli run(std::vector<std::string> args) {
-  args.insert(args.begin(), "meshflow");
-  std::vector<char*> argv;
-  for (auto& s : args) argv.push_back(s.data());
-  argv.push_back(nullptr);
-  std::ostringstream out, err;
-  auto* o = std::cout.rdbuf(out.rdbuf());
-  auto* e = std::cerr.rdbuf(err.rdbuf());
-  int code = meshflow::cli_main(int(args.size()), argv.data());
-  std::cout.rdbuf(o);
-  std::cerr.rdbuf(e);
-  return {code, out.str(), err.str()};
-}
+using mftest::Cli;
+Cli run(std::vector<std::string> args) { return mftest::run_cli(std::move(args)); }
 
 std::string slurp(const fs::path& p) {
   std::ifstream in(p, std::ios::binary);

@@ -1,5 +1,10 @@
 #include "support.hpp"
 
+#include "engine/cli.hpp"
+
+#include <iostream>
+#include <sstream>
+
 #include <doctest/doctest.h>
 
 #include <algorithm>
@@ -84,6 +89,20 @@ int replay_corpus(const fs::path& dir, int (*entry)(const std::uint8_t*, std::si
     CHECK_NOTHROW(CHECK(entry(reinterpret_cast<const std::uint8_t*>(data.data()), data.size()) == 0));
   }
   return int(files.size());
+}
+
+Cli run_cli(std::vector<std::string> args) {
+  args.insert(args.begin(), "meshflow");
+  std::vector<char*> argv;
+  for (auto& s : args) argv.push_back(s.data());
+  argv.push_back(nullptr);
+  std::ostringstream out, err;
+  auto* o = std::cout.rdbuf(out.rdbuf());
+  auto* e = std::cerr.rdbuf(err.rdbuf());
+  int code = meshflow::cli_main(int(args.size()), argv.data());
+  std::cout.rdbuf(o);
+  std::cerr.rdbuf(e);
+  return {code, out.str(), err.str()};
 }
 
 }  // namespace mftest

@@ -33,4 +33,12 @@ ShellResult sh(const std::string& command);
 // number of files.
 int replay_corpus(const fs::path& dir, int (*entry)(const std::uint8_t*, std::size_t));
 
+// Runs the meshflow command line in this process (meshflow::cli_main with "meshflow" as
+// argv[0]), capturing what it prints.
+struct Cli {
+  int code;
+  std::string out, err;
+};
+Cli run_cli(std::vector<std::string> args);
+
 }  // namespace mftest
