@@ -293,7 +293,6 @@ void Builder::junction_ends() {
   std::set<int> jedges;
   for (auto& j : J) jedges.insert(j.edge);
   for (auto& [V, list] : at) {
-    V3 P0 = v3(S.vertex_point(V));
     // the edge of face `f` at V other than the junction edges: where the cross-section lies
     auto side_edge = [&](int f) {
       int found = -1;
@@ -387,7 +386,6 @@ void Builder::junction_ends() {
       std::size_t k = end == 0 ? 0 : j.pa.size() - 1;
       j.pa[k] = pa_node[j.A], j.pc[k] = pc_node[j.A], j.pb[k] = pb_node[j.B];
     }
-    (void)P0;
   }
 }
 
@@ -890,7 +888,7 @@ void Builder::volume() {
       pface.push_back(f);
     }
   }
-  if (!std::getenv("MESHFLOW_SWEEP_NO_UNTANGLE")) untangle(P);
+  untangle(P);
   auto& prisms = m.block(model::Shape::Prism, 1, 3, 1);
   for (std::size_t i = 0; i < P.size(); ++i) {
     valid_or_flip(model::Shape::Prism, P[i], {0, 2, 1, 3, 5, 4}, "prism on wall face " + std::to_string(pface[i]));
@@ -898,21 +896,18 @@ void Builder::volume() {
     ++R.prisms;
   }
   if (prisms.size() == 0) m.blocks.pop_back();
-  bool any_hex = false;
   for (auto& j : J) {
     std::size_t n = j.p0.size();
     for (std::size_t k = 0; k + 1 < n; ++k) {
       std::vector<std::uint32_t> h{j.p0[k], j.p0[k + 1], j.pa[k + 1], j.pa[k], j.pb[k], j.pb[k + 1], j.pc[k + 1], j.pc[k]};
       valid_or_flip(model::Shape::Hex, h, {0, 3, 2, 1, 4, 7, 6, 5}, "junction hex of edge " + std::to_string(j.edge));
       m.block(model::Shape::Hex, 1, 3, 1).add(h.data());
-      any_hex = true;
       ++R.hexes;
       face_quads[j.A].push_back({j.p0[k], j.p0[k + 1], j.pa[k + 1], j.pa[k]});
       face_quads[j.B].push_back({j.p0[k], j.p0[k + 1], j.pb[k + 1], j.pb[k]});
       R.strip_quads += 2;
     }
   }
-  (void)any_hex;
   for (int e = 0; e < ne; ++e) {
     if (slide_other[e] < 0) continue;
     for (std::size_t k = 0; k + 1 < en[e].size(); ++k) {
