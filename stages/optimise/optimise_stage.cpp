@@ -5,9 +5,12 @@
 #include "stages/io/mesh_io.hpp"
 #include "stages/model/quality.hpp"
 #include "stages/optimise/optimise.hpp"
+#include "stages/optimise/untangle.hpp"
 
 #include <nlohmann/json.hpp>
 
+#include <cstdlib>
+#include <functional>
 #include <sstream>
 
 namespace meshflow::optimise {
@@ -35,11 +38,22 @@ void run(StageContext& ctx) {
   cad::Shape shape = cad::Shape::load(ctx.input("shape").path);
   ctx.progress(0.1, "optimising surface nodes");
   Report r = optimise_mesh(m, shape, opt, ctx.threads());
+  UntangleReport ur;
+  const bool do_untangle = p.value("untangle", true);
+  if (do_untangle) {
+    ctx.progress(0.5, "untangling invalid elements");
+    UntangleOptions uo;
+    uo.max_rings = p.value("untangle_rings", 3);
+    std::function<void(const std::string&)> dbg;
+    if (std::getenv("MESHFLOW_UNTANGLE_DEBUG")) dbg = [&](const std::string& l) { ctx.log(l); };
+    ur = untangle(m, uo, ctx.threads(), dbg);
+  }
   ctx.progress(0.7, "writing");
   io::write_mesh(m, ctx.output("mesh", "mesh"), io::MeshFormat::MshBinary);
   ctx.progress(0.8, "quality");
   ctx.stats()["mesh"] = model::mesh_stats(m, ctx.threads());
   ctx.stats()["optimise"] = r.to_json();
+  if (do_untangle) ctx.stats()["optimise"]["untangle"] = ur.to_json();
   std::ostringstream s;
   s << "optimise: P=" << r.order << ", " << r.curve_edges << " curve edges, " << r.surface_edges << " surface edges, "
     << r.faces << " faces; energy " << r.energy_before << " -> " << r.energy_after << ", " << r.nodes_moved
@@ -50,6 +64,14 @@ void run(StageContext& ctx) {
     s << "; skipped " << r.skipped_inconsistent << " units whose parameters do not reproduce their nodes and "
       << r.skipped_seam << " across a seam";
   ctx.log(s.str());
+  if (do_untangle) {
+    std::ostringstream u;
+    u << "optimise: untangle: " << ur.invalid_before << " invalid elements -> " << ur.invalid_after << " (" << ur.repaired
+      << " patches repaired in " << ur.attempts << " attempts, " << ur.nodes_moved << " off-CAD nodes moved, largest move "
+      << ur.max_move << " x element size, " << ur.seconds << " s)";
+    ctx.log(u.str());
+    for (auto t : ur.unresolved) ctx.log("optimise:   still invalid: element " + std::to_string(t));
+  }
   ctx.progress(1.0, "done");
 }
 

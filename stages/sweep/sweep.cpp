@@ -562,6 +562,9 @@ void Builder::mesh_face(int f) {
     std::uint32_t node;
     std::array<double, 2> uv;
     bool pole = false;  // the start of a degenerate edge: the segment to the next point is the pole
+    int edge = -1;      // the CAD edge whose segment starts here (-1: a pole or a substituted curve)
+    bool reversed = false;
+    bool first = false;  // the edge's first point in loop direction (a CAD vertex)
   };
   std::vector<std::vector<LP>> loops;
   // (u,v) on f of a node classified elsewhere: through the p-curves of f's edges (a seam's two
@@ -631,7 +634,7 @@ void Builder::mesh_face(int f) {
       for (std::size_t s = 0; s + 1 < n; ++s) {
         std::size_t k = eu.reversed ? n - 1 - s : s;
         cad::Vec2 q = S.edge_uv(e, f, t[k], eu.reversed);
-        raw.push_back({nn[k], {q.u, q.v}});
+        raw.push_back({nn[k], {q.u, q.v}, false, e, eu.reversed, s == 0});
       }
     }
     // clean-up: consecutive duplicates and X,V,X detours (a junction vertex between a strip
@@ -696,6 +699,32 @@ void Builder::mesh_face(int f) {
   std::vector<std::uint32_t> bnode;
   std::vector<V3> bx;
   std::vector<double> bh;
+  // Smooth boundary points: where the face's boundary is tangent-continuous in 3D, a curved
+  // triangle cannot have two boundary edges (its corner there opens to 180 degrees and det J
+  // vanishes): inside a CAD edge always, at a CAD vertex when the tangents of the edges that
+  // meet there differ by less than 20 degrees (the semicircular arc closing a blunt trailing
+  // edge at a revolved tip continues the straight trailing-edge lines).
+  auto tangent = [&](int e, bool at_end, bool reversed) {
+    auto r = S.edge_range(e);
+    double t = (at_end != reversed) ? r.hi : r.lo;
+    V3 d = v3(S.edge_eval(e, t).d1);
+    return reversed ? sub(V3{0, 0, 0}, d) : d;
+  };
+  for (auto& l : loops) {
+    const std::size_t L = l.size();
+    for (std::size_t i = 0; i < L; ++i) {
+      const auto& cur = l[i];
+      const auto& prev = l[(i + L - 1) % L];
+      bool smooth = false;
+      if (cur.edge >= 0 && !cur.first && !cur.pole) smooth = true;
+      else if (cur.edge >= 0 && cur.first && prev.edge >= 0 && prev.edge != cur.edge && !S.edge_degenerate(prev.edge)) {
+        V3 ti = tangent(prev.edge, true, prev.reversed), to = tangent(cur.edge, false, cur.reversed);
+        double ni = norm(ti), no = norm(to);
+        smooth = ni > 0 && no > 0 && dot(ti, to) > std::cos(20 * M_PI / 180) * ni * no;
+      }
+      in.smooth.push_back(smooth ? 1 : 0);
+    }
+  }
   for (auto& l : loops) {
     int first = static_cast<int>(in.uv.size());
     for (std::size_t i = 0; i < l.size(); ++i) {
@@ -754,6 +783,12 @@ void Builder::mesh_face(int f) {
   detail::UVMeshOutput out;
   try {
     out = detail::mesh_uv(in);
+    if (std::getenv("MESHFLOW_SWEEP_DEBUG")) {
+      int ns = 0;
+      for (char c : in.smooth) ns += c;
+      log("face " + std::to_string(f) + ": " + std::to_string(ns) + " smooth boundary points of " + std::to_string(in.smooth.size()) +
+          ", " + std::to_string(out.smooth_corner_splits) + " triangles split at smooth corners");
+    }
   } catch (const std::exception& ex) {
     throw StageError("sweep: face " + std::to_string(f) + " (" + cad::tag_name(S.face_tag(f)) + ", " +
                      S.face_surface_type(f) + ") cannot be triangulated in its parameter plane: " + ex.what());

@@ -10,6 +10,7 @@
 #include <cmath>
 #include <list>
 #include <map>
+#include <set>
 #include <stdexcept>
 #include <string>
 
@@ -314,6 +315,52 @@ UVMeshOutput mesh_uv(const UVMeshInput& in) {
       if (!ok || after < before) out.uv[i] = old, p3[i] = oldp;
     }
   swaps();
+  // ── no two boundary segments of one triangle meeting at a smooth boundary point ──
+  if (!in.smooth.empty()) {
+    std::set<std::pair<int, int>> seg;
+    for (auto& sg : in.segments) seg.insert({std::min(sg[0], sg[1]), std::max(sg[0], sg[1])});
+    auto is_seg = [&](int a, int b) { return seg.count({std::min(a, b), std::max(a, b)}) > 0; };
+    const std::size_t nt = out.tris.size();
+    for (std::size_t t = 0; t < nt; ++t) {
+      auto tr = out.tris[t];
+      bool split = false;
+      for (int k = 0; k < 3 && !split; ++k) {
+        int v = tr[k], a = tr[(k + 2) % 3], b = tr[(k + 1) % 3];
+        split = v < nb && v < static_cast<int>(in.smooth.size()) && in.smooth[v] && is_seg(a, v) && is_seg(v, b);
+      }
+      if (!split) continue;
+      // The new point: off the middle of the shorter of the two boundary segments at the smooth
+      // point, inwards by half its length, so that the corners at both of its ends open to about
+      // 90 degrees (a centroid would leave the sliver's corner at the smooth point nearly flat,
+      // and the curved segment's end tangent would fold it). The centroid when that point is not
+      // inside the triangle.
+      std::array<double, 2> c{(out.uv[tr[0]][0] + out.uv[tr[1]][0] + out.uv[tr[2]][0]) / 3,
+                              (out.uv[tr[0]][1] + out.uv[tr[1]][1] + out.uv[tr[2]][1]) / 3};
+      for (int k = 0; k < 3; ++k) {
+        int v = tr[k], a = tr[(k + 2) % 3], b = tr[(k + 1) % 3];
+        if (!(v < nb && v < static_cast<int>(in.smooth.size()) && in.smooth[v] && is_seg(a, v) && is_seg(v, b))) continue;
+        auto len = [&](int i, int j) { return std::hypot(out.uv[i][0] - out.uv[j][0], out.uv[i][1] - out.uv[j][1]); };
+        int o = len(a, v) <= len(v, b) ? a : b;  // the shorter segment is (v, o)
+        int far = o == a ? b : a;
+        std::array<double, 2> mid{0.5 * (out.uv[v][0] + out.uv[o][0]), 0.5 * (out.uv[v][1] + out.uv[o][1])};
+        std::array<double, 2> nrm{-(out.uv[o][1] - out.uv[v][1]), out.uv[o][0] - out.uv[v][0]};  // |nrm| = segment length
+        double side = nrm[0] * (out.uv[far][0] - mid[0]) + nrm[1] * (out.uv[far][1] - mid[1]);
+        if (side < 0) nrm = {-nrm[0], -nrm[1]};
+        std::array<double, 2> q{mid[0] + 0.5 * nrm[0], mid[1] + 0.5 * nrm[1]};
+        if (orient(out.uv[tr[0]], out.uv[tr[1]], q) > 0 && orient(out.uv[tr[1]], out.uv[tr[2]], q) > 0 &&
+            orient(out.uv[tr[2]], out.uv[tr[0]], q) > 0)
+          c = q;
+        break;
+      }
+      int ci = static_cast<int>(out.uv.size());
+      out.uv.push_back(c);
+      p3.push_back(in.point(c[0], c[1]));
+      out.tris[t] = {tr[0], tr[1], ci};
+      out.tris.push_back({tr[1], tr[2], ci});
+      out.tris.push_back({tr[2], tr[0], ci});
+      ++out.smooth_corner_splits;
+    }
+  }
   std::sort(out.tris.begin(), out.tris.end());
   out.min_quality = 1;
   for (int t = 0; t < static_cast<int>(out.tris.size()); ++t) out.min_quality = std::min(out.min_quality, q3(t));

@@ -20,6 +20,10 @@ namespace meshflow::sweep::detail {
 struct UVMeshInput {
   std::vector<std::array<double, 2>> uv;     // boundary points (any scaling of u, v)
   std::vector<std::array<int, 2>> segments;  // closed loops of constrained segments
+  // optional, per boundary point: 1 where the boundary is tangent-continuous in 3D. No output
+  // triangle has two boundary segments meeting at such a point (curved, its corner there would
+  // open to 180 degrees): such a triangle is split at its centroid at the end.
+  std::vector<char> smooth;
   std::function<std::array<double, 3>(double, double)> point;  // surface point at (u, v)
   std::function<double(double, double)> size;                  // target 3D edge length at (u, v)
   // optional turn-angle rule: a triangle whose vertex normals differ by more than max_turn
@@ -37,6 +41,7 @@ struct UVMeshOutput {
   std::vector<std::array<double, 2>> uv;  // the input boundary points (same indices), then new points
   std::vector<std::array<int, 3>> tris;   // counter-clockwise in (u, v), inside the loops only
   int passes = 0;
+  int smooth_corner_splits = 0;  // triangles split because two boundary segments met at a smooth point
   double min_quality = 1;  // of the result
 };
 

@@ -85,6 +85,14 @@ TEST_CASE("naca_wingtip: runs, matches its golden, re-runs from cache, --set re-
   json rep = json::parse(slurp(d / "out/report.json"));
   CHECK(rep["ok"] == true);
   for (auto& s : rep["stages"]) CHECK(s["status"] == "ran");
+  // the demo's order-4 boundary-layer mesh is valid everywhere: every stage's mesh has no
+  // inverted element (Bezier bounds), the curved ones included after optimise untangles them
+  for (auto& s : rep["stages"]) {
+    if (!s.contains("stats") || !s["stats"].contains("mesh")) continue;
+    INFO(s["name"].get<std::string>());
+    if (s["name"] != "curve") CHECK(s["stats"]["mesh"]["invalid"] == 0);
+    CHECK(s["stats"]["mesh"]["nonconforming_faces"] == 0);
+  }
   // every real kind's key covers the code of its module (a changed algorithm is never a stale hit)
   for (auto& s : rep["stages"]) {
     json entry = json::parse(slurp(d / "cache/actions" / (s["key"].get<std::string>() + ".json")));

@@ -1,0 +1,186 @@
+// Tests of the untangler (stages/optimise/untangle.hpp) on a P=4 tetrahedral cube whose
+// high-order nodes are pushed across their elements, as curving does next to a curved face.
+#include <doctest/doctest.h>
+
+#include "stages/model/element.hpp"
+#include "stages/model/quality.hpp"
+#include "stages/optimise/untangle.hpp"
+
+#include <cmath>
+#include <map>
+#include <tuple>
+
+namespace model = meshflow::model;
+using meshflow::model::Mesh;
+using meshflow::model::Shape;
+
+namespace {
+
+// The unit cube in n^3 cells, 6 tets each (Kuhn), promoted to order P with straight nodes
+// shared between elements; nodes on the cube's faces classified (2, 1), others (3, 1).
+Mesh cube_tets(int n, int P) {
+  Mesh m;
+  std::vector<int> dims;
+  std::map<std::tuple<long, long, long>, std::uint32_t> at;  // exact lattice key (n*P steps)
+  const long S = long(n) * P;
+  auto node = [&](long i, long j, long k) {
+    auto key = std::make_tuple(i, j, k);
+    auto it = at.find(key);
+    if (it != at.end()) return it->second;
+    std::uint32_t v = m.add_node(double(i) / S, double(j) / S, double(k) / S);
+    bool bnd = i == 0 || j == 0 || k == 0 || i == S || j == S || k == S;
+    dims.push_back(bnd ? 2 : 3);
+    at.emplace(key, v);
+    return v;
+  };
+  auto& b = m.block(Shape::Tet, P, 3, 1);
+  const auto& ref = model::reference_nodes(Shape::Tet, P);
+  // Kuhn subdivision: the 6 permutations of the axes, corner path 0 -> e_a -> e_a+e_b -> 1
+  const int perms[6][3] = {{0, 1, 2}, {0, 2, 1}, {1, 0, 2}, {1, 2, 0}, {2, 0, 1}, {2, 1, 0}};
+  for (int ci = 0; ci < n; ++ci)
+    for (int cj = 0; cj < n; ++cj)
+      for (int ck = 0; ck < n; ++ck)
+        for (auto& p : perms) {
+          std::array<std::array<long, 3>, 4> V;
+          V[0] = {long(ci) * P, long(cj) * P, long(ck) * P};
+          V[1] = V[0], V[1][p[0]] += P;
+          V[2] = V[1], V[2][p[1]] += P;
+          V[3] = V[2], V[3][p[2]] += P;
+          // orientation: positive volume
+          auto d = [&](int a, int c) { return V[a][c] - V[0][c]; };
+          long det = d(1, 0) * (d(2, 1) * d(3, 2) - d(2, 2) * d(3, 1)) - d(1, 1) * (d(2, 0) * d(3, 2) - d(2, 2) * d(3, 0)) +
+                     d(1, 2) * (d(2, 0) * d(3, 1) - d(2, 1) * d(3, 0));
+          if (det < 0) std::swap(V[1], V[2]);
+          std::vector<std::uint32_t> en;
+          for (const auto& r : ref) {
+            // reference tet (0,0,0),(1,0,0),(0,1,0),(0,0,1): x = V0 + r0 (V1-V0) + r1 (V2-V0) + r2 (V3-V0)
+            long q[3];
+            for (int c = 0; c < 3; ++c) {
+              double x = V[0][c] + r[0] * (V[1][c] - V[0][c]) + r[1] * (V[2][c] - V[0][c]) + r[2] * (V[3][c] - V[0][c]);
+              q[c] = std::lround(x);
+            }
+            en.push_back(node(q[0], q[1], q[2]));
+          }
+          b.add(en.data());
+        }
+  m.node_entity_dim = dims;
+  m.node_entity_tag.assign(dims.size(), 1);
+  return m;
+}
+
+std::size_t invalid(const Mesh& m) {
+  std::size_t k = 0;
+  for (auto& qb : model::mesh_quality(m, 1))
+    for (auto& q : qb) k += !q.valid;
+  return k;
+}
+
+// Pushes the middle node of local edge `e` of element `el` towards and past the opposite edge's
+// midpoint by `f` of the distance (f > 1: across the element).
+void push_edge_node(Mesh& m, std::size_t el, int edge, double f) {
+  const auto& b = m.blocks[0];
+  const std::uint32_t* en = b.element(el);
+  const auto& nodes = model::edge_nodes(Shape::Tet, b.order);
+  std::uint32_t v = en[nodes[edge][2 + (b.order - 1) / 2]];  // middle interior node of the edge
+  auto ev = model::edge_vertices(Shape::Tet)[edge];
+  int o[2], k = 0;
+  for (int i = 0; i < 4; ++i)
+    if (i != ev[0] && i != ev[1]) o[k++] = i;
+  double tx = 0.5 * (m.x[en[o[0]]] + m.x[en[o[1]]]), ty = 0.5 * (m.y[en[o[0]]] + m.y[en[o[1]]]), tz = 0.5 * (m.z[en[o[0]]] + m.z[en[o[1]]]);
+  m.x[v] += f * (tx - m.x[v]), m.y[v] += f * (ty - m.y[v]), m.z[v] += f * (tz - m.z[v]);
+}
+
+}  // namespace
+
+TEST_CASE("untangle: interior high-order nodes pushed across their tets are repaired, nothing on the boundary or at a vertex moves") {
+  Mesh m = cube_tets(3, 4);
+  REQUIRE(invalid(m) == 0);
+  // an interior tet: one whose vertices are all interior or whose edge 0 is interior
+  std::size_t el = SIZE_MAX;
+  int edge = -1;
+  const auto& b = m.blocks[0];
+  for (std::size_t e = 0; e < b.size() && el == SIZE_MAX; ++e)
+    for (int k = 0; k < 6; ++k) {
+      std::uint32_t v = b.element(e)[model::edge_nodes(Shape::Tet, 4)[k][3]];
+      if (m.node_entity_dim[v] == 3) {
+        el = e, edge = k;
+        break;
+      }
+    }
+  REQUIRE(el != SIZE_MAX);
+  push_edge_node(m, el, edge, 1.6);
+  const std::size_t bad = invalid(m);
+  REQUIRE(bad > 0);
+  Mesh before = m;
+  auto rep = meshflow::optimise::untangle(m, {}, 1);
+  MESSAGE("untangle: " << rep.invalid_before << " -> " << rep.invalid_after << " invalid, " << rep.nodes_moved
+                       << " nodes moved, attempts " << rep.attempts);
+  CHECK(rep.invalid_before == bad);
+  CHECK(rep.invalid_after == 0);
+  CHECK(invalid(m) == 0);
+  CHECK(rep.nodes_moved > 0);
+  // vertices and boundary nodes did not move
+  std::vector<char> vertex(m.num_nodes(), 0);
+  for (std::size_t e = 0; e < b.size(); ++e)
+    for (int a = 0; a < 4; ++a) vertex[b.element(e)[a]] = 1;
+  for (std::size_t i = 0; i < m.num_nodes(); ++i)
+    if (vertex[i] || m.node_entity_dim[i] != 3) {
+      CHECK(m.x[i] == before.x[i]);
+      CHECK(m.y[i] == before.y[i]);
+      CHECK(m.z[i] == before.z[i]);
+    }
+}
+
+TEST_CASE("untangle: an element inverted by a node on the boundary cannot be repaired; it is reported and the mesh is left exactly as it was") {
+  Mesh m = cube_tets(2, 4);
+  const auto& b = m.blocks[0];
+  // a boundary face node pushed deep inside its tet and beyond: the only nodes that could
+  // compensate are fixed (boundary) or vertices
+  std::size_t el = SIZE_MAX;
+  int edge = -1;
+  for (std::size_t e = 0; e < b.size() && el == SIZE_MAX; ++e)
+    for (int k = 0; k < 6; ++k) {
+      const auto& en = model::edge_nodes(Shape::Tet, 4)[k];
+      std::uint32_t v = b.element(e)[en[3]];
+      if (m.node_entity_dim[v] == 2 && m.node_entity_dim[b.element(e)[en[2]]] == 2 && m.node_entity_dim[b.element(e)[en[4]]] == 2) {
+        el = e, edge = k;
+        break;
+      }
+    }
+  REQUIRE(el != SIZE_MAX);
+  push_edge_node(m, el, edge, 3.0);
+  REQUIRE(invalid(m) > 0);
+  Mesh before = m;
+  auto rep = meshflow::optimise::untangle(m, {}, 1);
+  MESSAGE("untangle: " << rep.invalid_before << " -> " << rep.invalid_after);
+  CHECK(rep.invalid_after > 0);
+  CHECK(rep.unresolved.size() == rep.invalid_after);
+  CHECK(invalid(m) == rep.invalid_after);
+  CHECK(rep.invalid_after <= rep.invalid_before);  // never worse
+}
+
+TEST_CASE("untangle: the same result at 1 and 2 threads, and nothing to do on a valid mesh") {
+  Mesh a = cube_tets(2, 3);
+  Mesh v = a;
+  auto r0 = meshflow::optimise::untangle(v, {}, 2);
+  CHECK(r0.invalid_before == 0);
+  CHECK(r0.attempts == 0);
+  CHECK(v.x == a.x);
+  // push an interior node (order 3: the edge's first interior node)
+  const auto& b = a.blocks[0];
+  bool pushed = false;
+  for (std::size_t e = 0; e < b.size() && !pushed; ++e)
+    for (int k = 0; k < 6 && !pushed; ++k) {
+      std::uint32_t nd = b.element(e)[model::edge_nodes(Shape::Tet, 3)[k][2]];
+      if (a.node_entity_dim[nd] == 3) push_edge_node(a, e, k, 1.8), pushed = true;
+    }
+  REQUIRE(pushed);
+  Mesh c = a;
+  auto r1 = meshflow::optimise::untangle(a, {}, 1);
+  auto r2 = meshflow::optimise::untangle(c, {}, 2);
+  CHECK(r1.invalid_before > 0);
+  CHECK(r1.invalid_after == r2.invalid_after);
+  CHECK(a.x == c.x);
+  CHECK(a.y == c.y);
+  CHECK(a.z == c.z);
+}
