@@ -137,6 +137,33 @@ TEST_CASE("naca_wingtip: runs, matches its golden, re-runs from cache, --set re-
   auto r2 = sh(meshflow() + " run " + wf + common);
   json rep2 = json::parse(slurp(d / "out/report.json"));
   for (auto& s : rep2["stages"]) CHECK(s["status"] == "cached");
+  // order 2: Gmsh's analysis is authoritative for every type; it must agree that nothing is inverted
+  {
+    auto o2 = sh(meshflow() + " run " + wf + common + " --set curve.order=2");
+    INFO(o2.out);
+    REQUIRE(o2.code == 0);
+    json rep = json::parse(slurp(d / "out/report.json"));
+    for (auto& s : rep["stages"]) {
+      const std::string name = s["name"];
+      const bool reran = name == "curve" || name == "optimise" || name == "split";
+      CHECK(s["status"] == (reran ? "ran" : "cached"));
+      if (name == "split") CHECK(s["stats"]["mesh"]["invalid"] == 0);
+    }
+    auto g = sh(std::string(MESHFLOW_PYTHON) + " " + std::string(MESHFLOW_SOURCE_DIR) + "/tests/workflows/gmsh_jacobian_check.py " +
+                (d / "out/mesh.msh").string());
+    INFO(g.out);
+    REQUIRE(g.code == 0);
+    std::istringstream gin(g.out);
+    std::string type;
+    long n = 0, b = 0;
+    int types = 0;
+    while (gin >> type >> n >> b) {
+      INFO(type);
+      CHECK(b == 0);
+      ++types;
+    }
+    CHECK(types == 4);  // tets, prisms, hexes, pyramids
+  }
   auto r3 = sh(meshflow() + " run " + wf + common + " --set geometry.span=2");
   json rep3 = json::parse(slurp(d / "out/report.json"));
   CHECK(rep3["stages"][0]["status"] == "ran");
