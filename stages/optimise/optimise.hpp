@@ -45,7 +45,9 @@
 // element-interior nodes (from all the element's face nodes). Being linear, blending the
 // displacement keeps the rule of the curve stage, "interior node = straight position +
 // blended boundary displacement", up to the choice of blending. A variational volume
-// optimiser (Turner et al. 2016) is the planned second VolumeMethod; it is not there yet.
+// optimiser of the whole mesh (Turner et al. 2016) is the planned second VolumeMethod; it is not
+// there yet. What curving inverted is repaired locally afterwards by untangle.hpp (the stage
+// runs it after optimise_mesh, option `untangle`): patches around each invalid element only.
 //
 // ── Validity guard ─────────────────────────────────────────────────────────────────────
 // Every element of the mesh's highest dimension that has a moved node is checked with the
