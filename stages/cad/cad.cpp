@@ -27,6 +27,8 @@
 #include <Geom_Plane.hxx>
 #include <Geom_RectangularTrimmedSurface.hxx>
 #include <Message.hxx>
+#include <IGESControl_Controller.hxx>
+#include <IGESControl_Writer.hxx>
 #include <Message_PrinterOStream.hxx>
 #include <STEPControl_Writer.hxx>
 #include <StepData_StepModel.hxx>
@@ -219,6 +221,18 @@ void Shape::export_step(const std::filesystem::path& file) const {
   w.Model()->SetWriteLengthUnit(mm);
   if (w.Transfer(impl_->shape, STEPControl_AsIs) != IFSelect_RetDone || w.Write(file.c_str()) != IFSelect_RetDone)
     throw StageError("writing the STEP file '" + file.string() + "' failed");
+}
+
+void Shape::export_iges(const std::filesystem::path& file) const {
+  occt::silence();
+  const std::string& un = impl_->units;
+  const char* u = un == "m" ? "M" : un == "cm" ? "CM" : un == "in" ? "IN" : un == "ft" ? "FT" : "MM";
+  IGESControl_Controller::Init();
+  // the shape's coordinates are in its own unit, and so is the file: no conversion
+  Interface_Static::SetCVal("xstep.cascade.unit", u);
+  IGESControl_Writer w(u, 1);  // mode 1: BRep (manifold solids with faces and edges), not trimmed surfaces
+  if (!w.AddShape(impl_->shape) || !w.Write(file.c_str()))
+    throw StageError("writing the IGES file '" + file.string() + "' failed");
 }
 
 const std::string& Shape::units() const { return impl_->units; }

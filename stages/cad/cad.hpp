@@ -119,6 +119,8 @@ class Shape {
   // Writes plain OCCT BREP / STEP AP214 (for materialising outputs).
   void export_brep(const std::filesystem::path& file) const;
   void export_step(const std::filesystem::path& file) const;
+  // IGES 5.3 (BRep mode: faces, edges, vertices as IGES 186/514 entities), in the shape's units.
+  void export_iges(const std::filesystem::path& file) const;
 
   const std::string& units() const;  // "mm", "m", "in", ... as in the source
 

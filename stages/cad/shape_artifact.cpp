@@ -40,6 +40,10 @@ ArtifactTypeRegistrar reg({
                 {"step", {".step", "STEP AP214 (in the shape's units)",
                           [](const std::filesystem::path& in, const std::filesystem::path& out) {
                             Shape::load(in).export_step(out);
+                          }}},
+                {"iges", {".igs", "IGES 5.3, BRep mode (in the shape's units)",
+                          [](const std::filesystem::path& in, const std::filesystem::path& out) {
+                            Shape::load(in).export_iges(out);
                           }}}},
     .summarize = [](const std::filesystem::path& p) { return occt::summarize(Shape::load(p)); },
 });

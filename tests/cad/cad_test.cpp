@@ -8,6 +8,7 @@
 
 #include <cmath>
 #include <fstream>
+#include <unistd.h>
 
 using meshflow::StageError;
 using meshflow::cad::Shape;
@@ -240,4 +241,43 @@ TEST_CASE("relative file paths resolve against the workflow folder, DLR-F6 loads
   CHECK(s.units() == "mm");
   // the half model's symmetry plane is y = 0
   CHECK(std::abs(s.box().hi.y) < 1e-6);
+}
+
+TEST_CASE("IGES: the paper's wing exported as IGES (in mm) and imported by the step kind: same faces, units and box") {
+  fs::path data = MESHFLOW_DATA_DIR;
+  if (!fs::exists(data / "wingtip/3d_bl_wing.stp")) return;
+  TestContext c("step", {{"file", "wingtip/3d_bl_wing.stp"}}, {}, data);
+  c.run();
+  Shape step = Shape::load(c.artifact("shape").path);
+  fs::path dir = fs::temp_directory_path() / ("meshflow-iges-" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  step.export_iges(dir / "wing.igs");
+  {
+    std::ifstream in(dir / "wing.igs");
+    std::string first;
+    std::getline(in, first);
+    CHECK(first.size() == 80);  // IGES fixed 80-column records
+  }
+  TestContext i("step", {{"file", (dir / "wing.igs").string()}}, {}, dir);
+  i.run();
+  Shape iges = Shape::load(i.artifact("shape").path);
+  CHECK(iges.units() == "mm");
+  CHECK(iges.num_faces() == step.num_faces());
+  auto a = step.box(), b = iges.box();
+  const double diag = std::hypot(a.hi.x - a.lo.x, a.hi.y - a.lo.y, a.hi.z - a.lo.z);
+  CHECK(std::abs(a.lo.x - b.lo.x) < 1e-6 * diag);
+  CHECK(std::abs(a.hi.x - b.hi.x) < 1e-6 * diag);
+  CHECK(std::abs(a.lo.y - b.lo.y) < 1e-6 * diag);
+  CHECK(std::abs(a.hi.y - b.hi.y) < 1e-6 * diag);
+  CHECK(std::abs(a.lo.z - b.lo.z) < 1e-6 * diag);
+  CHECK(std::abs(a.hi.z - b.hi.z) < 1e-6 * diag);
+  // the surfaces are the same: a point of every face of the STEP lies on a face of the IGES
+  for (int f = 0; f < step.num_faces(); ++f) {
+    auto [u0, u1, v0, v1] = step.face_uv_bounds(f);
+    auto p = step.face_point(f, 0.5 * (u0 + u1), 0.5 * (v0 + v1));
+    double best = INFINITY;
+    for (int g = 0; g < iges.num_faces(); ++g) best = std::min(best, iges.project_to_face(g, p).distance);
+    CHECK(best < 1e-6 * diag);
+  }
+  fs::remove_all(dir);
 }
