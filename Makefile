@@ -3,7 +3,7 @@ BUILD ?= build
 JOBS ?= $(shell nproc)
 CMAKE_FLAGS ?=
 
-.PHONY: all deps build demo test bench test-asan fuzz clean
+.PHONY: all deps build demo test bench pictures test-asan fuzz clean
 
 all: build
 
@@ -25,6 +25,10 @@ test: build
 bench: build
 	cmake --build $(BUILD) -j $(JOBS) --target benchmarks
 	bench/run.sh $(BUILD)
+
+# README's pictures (docs/img): demo and STEP wing meshes cut and rendered headless (VTK, xvfb)
+pictures: build
+	scripts/pictures.sh $(BUILD)
 
 test-asan: deps
 	cmake -S . -B build-asan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DMESHFLOW_SANITIZE=ON $(CMAKE_FLAGS)
