@@ -121,6 +121,29 @@ struct Stage {
       auto r = shape.edge_range(e);
       double len = shape.edge_length(e);
       int n = std::clamp(static_cast<int>(std::ceil(len / h)) + 1, 9, 4001);
+      {
+        // Stations are uniform in t, and dense enough that interpolating between them is
+        // faithful: junction corners (PA, PB, PC) are interpolated linearly and directions by
+        // normalised lerp. Around a leading edge whose radius is below the spacing (the root of
+        // a wing on a body: radius 0.16, spacing 0.7) a chord between two stations cuts through
+        // the wing and the interpolated corner folds the junction hexes. Refined (doubled) while
+        // the tangent turns by more than 90 degrees between two stations or a chord deviates
+        // from the curve (at the middle parameter) by more than 10% of the requested thickness.
+        auto too_coarse = [&](int m) {
+          double dt = (r.hi - r.lo) / (m - 1);
+          Vec3 pa = v3(shape.edge_point(e, r.lo)), ta = unit(v3(shape.edge_eval(e, r.lo).d1));
+          for (int i = 1; i < m; ++i) {
+            double tb = r.lo + i * dt;
+            Vec3 pb = v3(shape.edge_point(e, tb)), tgb = unit(v3(shape.edge_eval(e, tb).d1));
+            Vec3 pm = v3(shape.edge_point(e, tb - 0.5 * dt));
+            if (norm(sub(pm, mul(add(pa, pb), 0.5))) > 0.1 * T) return true;
+            if (norm(ta) > 0.5 && norm(tgb) > 0.5 && dot(ta, tgb) < 0) return true;
+            pa = pb, ta = tgb;
+          }
+          return false;
+        };
+        while (n < 4001 && too_coarse(n)) n = std::min(4001, 2 * n - 1);
+      }
       auto ends = shape.edge_vertices(e);
       I.v0 = ends[0], I.v1 = ends[1];
       std::vector<int> faces = {I.a};
@@ -936,7 +959,7 @@ void run(StageContext& ctx) {
 }
 
 StageRegistrar reg({.kind = "shell",
-                    .version = 1,
+                    .version = 2,
                     .summary = "near-field shell bounded by the medial object: thickness/direction fields, prism and C-type hex junction blocks",
                     .libraries = {"CGAL " CGAL_VERSION_STR},
                     .run = run});
