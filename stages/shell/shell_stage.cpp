@@ -12,6 +12,8 @@
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <cstdio>
+#include <cstdlib>
 #include <chrono>
 #include <cmath>
 #include <map>
@@ -894,6 +896,25 @@ struct Stage {
     stats["corner_balls_ignored"] = corner_balls;
     stats["self_intersections"] = inter.pairs;
     if (inter.pairs > 0) stats["self_intersection_at"] = inter.first;
+    {
+      // where the crossings are: per pair of wall faces the crossing triangles were swept from
+      // ("a-b", a <= b; "a-a": two triangles of one face's shell)
+      std::map<std::pair<int, int>, long> by;
+      for (auto [i, j] : inter.all) {
+        int a = out.shell_tri_face[i], b = out.shell_tri_face[j];
+        ++by[{std::min(a, b), std::max(a, b)}];
+      }
+      nlohmann::json jf = nlohmann::json::object();
+      for (auto& [k, c] : by) jf[std::to_string(k.first) + "-" + std::to_string(k.second)] = c;
+      stats["self_intersection_faces"] = jf;
+      if (const char* dbg = std::getenv("MESHFLOW_SHELL_DEBUG")) {  // every crossing pair, for analysis
+        std::FILE* fp = std::fopen(dbg, "w");
+        if (fp) {
+          for (auto [i, j] : inter.all) std::fprintf(fp, "%d %d\n", i, j);
+          std::fclose(fp);
+        }
+      }
+    }
     stats["min_clearance"] = {{"walls", clear_wall},
                               {"walls_over_thickness", rel_wall},
                               {"farfield", std::isfinite(clear_far) ? nlohmann::json(clear_far) : nlohmann::json(nullptr)},
