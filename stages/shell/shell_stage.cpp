@@ -660,8 +660,9 @@ struct Stage {
           if ((j + 1) % m == i) continue;
           const auto &c = P[j], &e = P[(j + 1) % m];
           double d1 = cross2(a, b, c), d2 = cross2(a, b, e), d3 = cross2(c, e, a), d4 = cross2(c, e, b);
-          if (!((d1 > 0) != (d2 > 0) && (d3 > 0) != (d4 > 0)) || d1 == d2 || d3 == d4) continue;
-          double t = d3 / (d3 - d4);  // along a -> b
+          // crossing or touching (an end on the other segment), not collinear
+          if (d1 * d2 > 0 || d3 * d4 > 0 || d1 == d2 || d3 == d4) continue;
+          double t = std::clamp(d3 / (d3 - d4), 0.0, 1.0);  // along a -> b
           std::array<double, 2> X{a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])};
           std::vector<std::array<double, 2>> Q;
           std::vector<int> H;
