@@ -829,6 +829,29 @@ void Builder::mesh_face(int f) {
     if (dot(nrm, fn) < 0) std::swap(g[1], g[2]);
     face_tris[f].push_back(g);
   }
+  // At a pole the parameter plane's pole segment collapses to one node: an edge x-y with the
+  // segment's two ends on opposite sides gives the triangles (pole, x, y) twice, a fold of the
+  // fan around the pole (the parametric body's nose). Both copies go: the pole's fan is closed
+  // by the triangles on either side of them, which share the edges pole-x and pole-y.
+  {
+    std::map<std::array<std::uint32_t, 3>, int> seen;
+    auto key = [](std::array<std::uint32_t, 3> g) {
+      std::sort(g.begin(), g.end());
+      return g;
+    };
+    for (auto& g : face_tris[f]) ++seen[key(g)];
+    std::size_t before = face_tris[f].size();
+    face_tris[f].erase(std::remove_if(face_tris[f].begin(), face_tris[f].end(),
+                                      [&](const std::array<std::uint32_t, 3>& g) { return seen[key(g)] == 2; }),
+                       face_tris[f].end());
+    for (auto& [k, c] : seen)
+      if (c > 2)
+        throw StageError("sweep: face " + std::to_string(f) + " has a triangle " + std::to_string(c) +
+                         " times over after mapping its parameter plane to 3D (a pole or seam folded); refine the face");
+    if (before != face_tris[f].size())
+      log("sweep: face " + std::to_string(f) + ": " + std::to_string((before - face_tris[f].size()) / 2) +
+          " folded triangle pair(s) at a pole removed");
+  }
   ++R.faces_meshed;
 }
 
