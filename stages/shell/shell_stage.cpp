@@ -1078,6 +1078,7 @@ struct Stage {
                              {"worst_location", worst}};
     stats["corner_balls_ignored"] = corner_balls;
     stats["self_intersections"] = inter.pairs;
+    nlohmann::json rundiag;  // diagnostics of this run: in the stage's report (stats), not in the artifact
     if (inter.pairs > 0) stats["self_intersection_at"] = inter.first;
     {
       // where the crossings are: per pair of wall faces the crossing triangles were swept from
@@ -1089,7 +1090,7 @@ struct Stage {
       }
       nlohmann::json jf = nlohmann::json::object();
       for (auto& [k, c] : by) jf[std::to_string(k.first) + "-" + std::to_string(k.second)] = c;
-      stats["self_intersection_faces"] = jf;
+      rundiag["self_intersection_faces"] = jf;
       // and by what joins the two faces: one face (its own shell folds), an edge (by its
       // kind: junction, other concave, convex, sharp convex above 300 degrees through the fluid
       // such as a trailing edge), a vertex only, or nothing (facing walls across a gap)
@@ -1125,7 +1126,7 @@ struct Stage {
       }
       nlohmann::json jk = nlohmann::json::object();
       for (auto& [k, c] : kinds) jk[k] = {{"pairs", c}, {"faces", where[k]}};
-      stats["self_intersection_kinds"] = jk;
+      rundiag["self_intersection_kinds"] = jk;
       if (const char* dbg = std::getenv("MESHFLOW_SHELL_DEBUG")) {  // every crossing pair, for analysis
         std::FILE* fp = std::fopen(dbg, "w");
         if (fp) {
@@ -1140,7 +1141,7 @@ struct Stage {
                               {"walls_at", at_wall}};
     if (std::isfinite(clear_far)) stats["min_clearance"]["farfield_at"] = at_far;
     stats["faces_unsampled"] = faces_unsampled;
-    stats["junction_strip_fallback_faces"] = strip_fallback;
+    rundiag["junction_strip_fallback_faces"] = strip_fallback;
     if (!unsampled_why.empty()) stats["unsampled"] = unsampled_why;
     long nj = 0, nwall_other = 0, nww = 0;
     nlohmann::json jlist = nlohmann::json::array();
@@ -1186,6 +1187,7 @@ struct Stage {
 
     auto& st = ctx.stats();
     for (auto& [k, v] : stats.items()) st[k] = v;
+    for (auto& [k, v] : rundiag.items()) st[k] = v;  // the run's report only, not the artifact header
     st["counts"] = h["counts"];
     st["shell_points"] = out.shell_points.size();
     st["shell_triangles"] = out.shell_tris.size();
