@@ -151,6 +151,7 @@ struct IntersectionReport {
   long pairs = 0;             // intersecting triangle pairs not sharing a vertex
   Vec3 first{};               // a point of the first pair (centroid of its first triangle)
   std::vector<std::array<int, 2>> examples;  // up to 10 pairs
+  std::vector<std::array<int, 2>> all;       // every pair (triangle indices), in report order
 };
 IntersectionReport self_intersections(const std::vector<Vec3>& points,
                                       const std::vector<std::array<std::int32_t, 3>>& tris);

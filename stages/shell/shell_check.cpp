@@ -72,6 +72,7 @@ IntersectionReport self_intersections(const std::vector<Vec3>& points,
       }
       ++rep.pairs;
       if (rep.examples.size() < 10) rep.examples.push_back({id[k], id[j]});
+      rep.all.push_back({id[k], id[j]});
     }
   }
   return rep;

@@ -12,6 +12,8 @@
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <cstdio>
+#include <cstdlib>
 #include <chrono>
 #include <cmath>
 #include <map>
@@ -121,6 +123,29 @@ struct Stage {
       auto r = shape.edge_range(e);
       double len = shape.edge_length(e);
       int n = std::clamp(static_cast<int>(std::ceil(len / h)) + 1, 9, 4001);
+      {
+        // Stations are uniform in t, and dense enough that interpolating between them is
+        // faithful: junction corners (PA, PB, PC) are interpolated linearly and directions by
+        // normalised lerp. Around a leading edge whose radius is below the spacing (the root of
+        // a wing on a body: radius 0.16, spacing 0.7) a chord between two stations cuts through
+        // the wing and the interpolated corner folds the junction hexes. Refined (doubled) while
+        // the tangent turns by more than 90 degrees between two stations or a chord deviates
+        // from the curve (at the middle parameter) by more than 10% of the requested thickness.
+        auto too_coarse = [&](int m) {
+          double dt = (r.hi - r.lo) / (m - 1);
+          Vec3 pa = v3(shape.edge_point(e, r.lo)), ta = unit(v3(shape.edge_eval(e, r.lo).d1));
+          for (int i = 1; i < m; ++i) {
+            double tb = r.lo + i * dt;
+            Vec3 pb = v3(shape.edge_point(e, tb)), tgb = unit(v3(shape.edge_eval(e, tb).d1));
+            Vec3 pm = v3(shape.edge_point(e, tb - 0.5 * dt));
+            if (norm(sub(pm, mul(add(pa, pb), 0.5))) > 0.1 * T) return true;
+            if (norm(ta) > 0.5 && norm(tgb) > 0.5 && dot(ta, tgb) < 0) return true;
+            pa = pb, ta = tgb;
+          }
+          return false;
+        };
+        while (n < 4001 && too_coarse(n)) n = std::min(4001, 2 * n - 1);
+      }
       auto ends = shape.edge_vertices(e);
       I.v0 = ends[0], I.v1 = ends[1];
       std::vector<int> faces = {I.a};
@@ -548,11 +573,121 @@ struct Stage {
     return tmp.face_field(f, u, v);
   }
 
+  // A junction block's cross-section at station k of edge e: PA on A and PB on B at the
+  // edge's thickness w along m_A / m_B (projected on the faces), the outer corner PC = PA's
+  // shell image by A's field. Memoised: blocks() and the sampled surface use the same points.
+  struct StripStation {
+    Vec3 PA, PB, PC;
+    std::array<double, 2> uvA, uvB;
+  };
+  std::map<std::pair<int, int>, StripStation> strip_memo;
+  StripStation strip_station(int e, int k) {
+    auto key = std::make_pair(e, k);
+    auto it = strip_memo.find(key);
+    if (it != strip_memo.end()) return it->second;
+    const EdgeInfo& I = E[e];
+    double w = I.th[k];
+    Vec3 P0 = I.p[k];
+    auto pa = shape.project_to_face(I.a, cv(add(P0, mul(I.ma[k], w))), I.uv[k].at(I.a));
+    auto pb = shape.project_to_face(I.b, cv(add(P0, mul(I.mb[k], w))), I.uv[k].at(I.b));
+    auto [ta, da] = grid_at(I.a, pa.u, pa.v);
+    StripStation q;
+    q.PA = v3(pa.point), q.PB = v3(pb.point);
+    q.PC = add(q.PA, mul(da, ta));
+    q.uvA = {pa.u, pa.v}, q.uvB = {pb.u, pb.v};
+    strip_memo[key] = q;
+    return q;
+  }
+
+  // true when no two segments of the loops touch except consecutive ones at their shared end
+  // (orientation predicates in doubles; O(n^2), loops have at most a few thousand points)
+  static bool simple_loops(const std::vector<std::array<double, 2>>& p, const std::vector<std::array<std::int32_t, 2>>& seg,
+                           int* bad_i = nullptr, int* bad_j = nullptr) {
+    auto fail = [&](std::size_t i, std::size_t j) {
+      if (bad_i) *bad_i = static_cast<int>(i), *bad_j = static_cast<int>(j);
+      return false;
+    };
+    auto orient = [&](int a, int b, int c) {
+      double d = (p[b][0] - p[a][0]) * (p[c][1] - p[a][1]) - (p[b][1] - p[a][1]) * (p[c][0] - p[a][0]);
+      return (d > 0) - (d < 0);
+    };
+    auto on = [&](int a, int b, int c) {  // c on the closed segment ab, given collinear
+      return std::min(p[a][0], p[b][0]) <= p[c][0] && p[c][0] <= std::max(p[a][0], p[b][0]) &&
+             std::min(p[a][1], p[b][1]) <= p[c][1] && p[c][1] <= std::max(p[a][1], p[b][1]);
+    };
+    for (std::size_t i = 0; i < seg.size(); ++i) {
+      auto [a, b] = seg[i];
+      if (p[a] == p[b]) return fail(i, i);
+      for (std::size_t j = i + 1; j < seg.size(); ++j) {
+        auto [c, d] = seg[j];
+        bool adj = a == c || a == d || b == c || b == d;
+        if (adj) {
+          // consecutive segments: only a fold back onto the previous one is a defect
+          int s = (b == c) ? a : (a == d) ? b : -1, t = (b == c) ? d : (a == d) ? c : -1, m = (b == c) ? b : (a == d) ? a : -1;
+          if (s >= 0 && orient(s, m, t) == 0) {
+            double dx1 = p[m][0] - p[s][0], dy1 = p[m][1] - p[s][1], dx2 = p[t][0] - p[m][0], dy2 = p[t][1] - p[m][1];
+            if (dx1 * dx2 + dy1 * dy2 < 0) return fail(i, j);
+          }
+          continue;
+        }
+        int o1 = orient(a, b, c), o2 = orient(a, b, d), o3 = orient(c, d, a), o4 = orient(c, d, b);
+        if (o1 != o2 && o3 != o4) return fail(i, j);
+        if ((o1 == 0 && on(a, b, c)) || (o2 == 0 && on(a, b, d)) || (o3 == 0 && on(c, d, a)) || (o4 == 0 && on(c, d, b)))
+          return fail(i, j);
+      }
+    }
+    return true;
+  }
+
+  // Trims the local loops of a boundary loop (points [first, end) of uv/gid) in (u,v): where the
+  // strip curves of two junction edges meeting at a corner of the face (or a strip curve and the
+  // next edge) cross, like the offsets of two sides of a polygon, the part between the two
+  // crossing segments (at most 64 segments or half the loop) is cut off and the crossing point
+  // (gid -1: its shell image comes from the face grid) takes its place.
+  static void trim_loop(std::vector<std::array<double, 2>>& uv, std::vector<int>& gid, std::size_t first) {
+    std::vector<std::array<double, 2>> P(uv.begin() + static_cast<long>(first), uv.end());
+    std::vector<int> G(gid.begin() + static_cast<long>(first), gid.end());
+    auto cross2 = [](std::array<double, 2> a, std::array<double, 2> b, std::array<double, 2> c) {
+      return (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
+    };
+    for (int guard = 0; guard < 10000 && P.size() > 4; ++guard) {
+      const std::size_t m = P.size(), W = std::min<std::size_t>(m / 2, 64);
+      bool changed = false;
+      for (std::size_t i = 0; i < m && !changed; ++i) {
+        const auto &a = P[i], &b = P[(i + 1) % m];
+        for (std::size_t d = 2; d <= W && !changed; ++d) {
+          std::size_t j = (i + d) % m;
+          if ((j + 1) % m == i) continue;
+          const auto &c = P[j], &e = P[(j + 1) % m];
+          double d1 = cross2(a, b, c), d2 = cross2(a, b, e), d3 = cross2(c, e, a), d4 = cross2(c, e, b);
+          // crossing or touching (an end on the other segment), not collinear
+          if (d1 * d2 > 0 || d3 * d4 > 0 || d1 == d2 || d3 == d4) continue;
+          double t = std::clamp(d3 / (d3 - d4), 0.0, 1.0);  // along a -> b
+          std::array<double, 2> X{a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])};
+          std::vector<std::array<double, 2>> Q;
+          std::vector<int> H;
+          for (std::size_t k = (j + 1) % m;; k = (k + 1) % m) {  // j+1 .. i, then X
+            Q.push_back(P[k]), H.push_back(G[k]);
+            if (k == i) break;
+          }
+          Q.push_back(X), H.push_back(-1);
+          P.swap(Q), G.swap(H);
+          changed = true;
+        }
+      }
+      if (!changed) break;
+    }
+    uv.resize(first), gid.resize(first);
+    uv.insert(uv.end(), P.begin(), P.end());
+    gid.insert(gid.end(), G.begin(), G.end());
+  }
+
   // ── 5. sampled shell surface ──
   ShellData out;
   long faces_unsampled = 0;
   std::vector<std::string> unsampled_why;
   std::vector<std::vector<int>> point_faces;  // non-wall faces each shell point slides on
+  std::vector<int> strip_fallback;            // faces sampled over their junction strips (loop not simple)
   void sample_surface() {
     // ids: vertex -> id, (edge, station, side) -> id
     std::map<int, int> vid;
@@ -589,6 +724,18 @@ struct Stage {
       eid[key] = id;
       return id;
     };
+    // the strip boundary of a wall|wall junction: one shell point PC per station, shared by A and B
+    std::map<std::pair<int, int>, int> sid;
+    auto strip_id = [&](int e, int k) {
+      auto key = std::make_pair(e, k);
+      auto it = sid.find(key);
+      if (it != sid.end()) return it->second;
+      StripStation q = strip_station(e, k);
+      int id = add_point(q.PA, q.PC, {});
+      sid[key] = id;
+      return id;
+    };
+    std::vector<char> strips_used(nf, 0);
     for (int f = 0; f < nf; ++f) {
       if (!wall[f]) continue;
       const FaceGrid& G = grids.at(f);
@@ -598,11 +745,41 @@ struct Stage {
       std::vector<std::vector<std::array<double, 2>>> loops;
       std::vector<Vec3> bpts;
       bool ok = true;
+      // Wall|wall junctions (topology C): the face is sampled outside its junction strip, whose
+      // boundary (PA on A, PB on B) maps to the block's outer corner PC; the strip's image is
+      // the junction hex's face, inside the near field, not shell. (Sampling the strip too put
+      // the hex's two inner faces into the shell twice, once from each side, and they cross.)
+      // Where that boundary loop is not simple in (u,v) (a partner face narrower than the strip:
+      // a blunt trailing edge) the face falls back to its own edges and the crack is closed below.
+      bool use_strips = false;
+      for (int e : face_edges_cache[f])
+        if (E[e].junction && E[e].kind == EdgeKind::wall_wall) use_strips = true;
+    for (;;) {  // at most twice: with strips, then (not simple) without
+      uv.clear(), gid.clear(), seg.clear(), loops.clear(), bpts.clear();
+      ok = true;
       for (auto& wire : shape.face_wires(f)) {
         std::vector<std::array<double, 2>> loop;
         int first = static_cast<int>(uv.size());
+        bool after_strip = false;
         for (auto& eu : wire) {
           int e = eu.edge;
+          if (use_strips && E[e].junction && E[e].kind == EdgeKind::wall_wall) {
+            const EdgeInfo& I = E[e];
+            int n = static_cast<int>(I.t.size());
+            for (int s = 0; s < n; ++s) {
+              int k = eu.reversed ? n - 1 - s : s;
+              StripStation q = strip_station(e, k);
+              bool onA = f == I.a;
+              uv.push_back(onA ? q.uvA : q.uvB);
+              gid.push_back(strip_id(e, k));
+              bpts.push_back(onA ? q.PA : q.PB);
+              loop.push_back(uv.back());
+            }
+            after_strip = true;
+            continue;
+          }
+          bool skip_first = after_strip;  // the vertex between a strip's end and this edge
+          after_strip = false;
           if (shape.edge_degenerate(e)) {
             // a pole: the p-curve's end points, both the vertex
             auto r = shape.edge_range(e);
@@ -617,7 +794,7 @@ struct Stage {
           const EdgeInfo& I = E[e];
           if (I.kind == EdgeKind::none) { ok = false; break; }
           int n = static_cast<int>(I.t.size());
-          for (int s = 0; s < n - 1; ++s) {
+          for (int s = skip_first ? 1 : 0; s < n - 1; ++s) {
             int k = eu.reversed ? n - 1 - s : s;
             cad::Vec2 q = shape.edge_uv(e, f, I.t[k], eu.reversed);
             uv.push_back({q.u, q.v});
@@ -627,10 +804,40 @@ struct Stage {
           }
         }
         if (!ok) break;
+        // a loop that starts right after a strip: its first edge's vertex is dropped too
+        if (after_strip && use_strips && !loop.empty()) {
+          auto& eu0 = wire.front();
+          const EdgeInfo& I0 = E[eu0.edge];
+          if (!shape.edge_degenerate(eu0.edge) && !(I0.junction && I0.kind == EdgeKind::wall_wall)) {
+            loop.erase(loop.begin());
+            uv.erase(uv.begin() + first), gid.erase(gid.begin() + first);
+          }
+        }
+        if (use_strips) {
+          trim_loop(uv, gid, first);
+          loop.assign(uv.begin() + first, uv.end());
+        }
         int last = static_cast<int>(uv.size());
         for (int i = first; i < last; ++i) seg.push_back({i, i + 1 < last ? i + 1 : first});
         loops.push_back(std::move(loop));
       }
+      if (ok && use_strips && std::getenv("MESHFLOW_SHELL_DEBUG")) {
+        int a = -1, b = -1;
+        simple_loops(uv, seg, &a, &b);
+        if (a >= 0)
+          ctx.log("shell: face " + std::to_string(f) + " loop of " + std::to_string(uv.size()) + " points not simple: segments " +
+                  std::to_string(a) + " (" + std::to_string(seg[a][0]) + "->" + std::to_string(seg[a][1]) + ", gid " +
+                  std::to_string(gid[seg[a][0]]) + ") and " + std::to_string(b) + " (" + std::to_string(seg[b][0]) + "->" +
+                  std::to_string(seg[b][1]) + ", gid " + std::to_string(gid[seg[b][0]]) + ") at " + fmt(out.shell_wall[gid[seg[a][0]]]));
+      }
+      if (ok && use_strips && !simple_loops(uv, seg)) {
+        use_strips = false;
+        strip_fallback.push_back(f);
+        continue;
+      }
+      break;
+    }
+      strips_used[f] = use_strips;
       if (!ok || loops.empty()) {
         ++faces_unsampled;
         unsampled_why.push_back("face " + std::to_string(f) + ": an edge without a field");
@@ -692,9 +899,15 @@ struct Stage {
     for (int e = 0; e < ne; ++e) {
       const EdgeInfo& I = E[e];
       if (!(I.junction && I.kind == EdgeKind::wall_wall)) continue;
+      if (strips_used[I.a] && strips_used[I.b]) continue;  // both sides end at the strip curve PC
       int n = static_cast<int>(I.t.size());
       std::vector<int> c(n);
+      bool to_strip = strips_used[I.a] || strips_used[I.b];  // one side ends at PC: close the other to it
       for (int k = 0; k < n; ++k) {
+        if (to_strip) {
+          c[k] = strip_id(e, k);
+          continue;
+        }
         if ((k == 0 && I.v0 >= 0 && v_has[I.v0]) || (k == n - 1 && I.v1 >= 0 && v_has[I.v1])) {
           c[k] = station_id(e, k, I.a);
           continue;
@@ -703,6 +916,7 @@ struct Stage {
       }
       for (int side : {I.a, I.b})
         for (int k = 0; k + 1 < n; ++k) {
+          if (strips_used[side]) break;
           int s0 = station_id(e, k, side), s1 = station_id(e, k + 1, side);
           std::array<std::int32_t, 3> t1{s0, s1, c[k + 1]}, t2{s0, c[k + 1], c[k]};
           for (auto t : {t1, t2})
@@ -736,14 +950,8 @@ struct Stage {
       nlohmann::json st = nlohmann::json::array();
       int n = static_cast<int>(I.t.size());
       for (int k = 0; k < n; ++k) {
-        double w = I.th[k];
-        Vec3 P0 = I.p[k];
-        auto pa = shape.project_to_face(I.a, cv(add(P0, mul(I.ma[k], w))), I.uv[k].at(I.a));
-        auto pb = shape.project_to_face(I.b, cv(add(P0, mul(I.mb[k], w))), I.uv[k].at(I.b));
-        auto [ta, da] = grid_at(I.a, pa.u, pa.v);
-        Vec3 PA = v3(pa.point), PB = v3(pb.point);
-        Vec3 PC = add(PA, mul(da, ta));
-        st.push_back({{"t", I.t[k]}, {"P0", P0}, {"PA", PA}, {"uvA", {pa.u, pa.v}}, {"PB", PB}, {"uvB", {pb.u, pb.v}}, {"PC", PC}});
+        StripStation q = strip_station(e, k);
+        st.push_back({{"t", I.t[k]}, {"P0", I.p[k]}, {"PA", q.PA}, {"uvA", q.uvA}, {"PB", q.PB}, {"uvB", q.uvB}, {"PC", q.PC}});
       }
       nlohmann::json equal = nlohmann::json::array();
       equal.push_back({"w" + s, "j" + s + "a", "j" + s + "b", "j" + s + "c"});
@@ -870,13 +1078,70 @@ struct Stage {
                              {"worst_location", worst}};
     stats["corner_balls_ignored"] = corner_balls;
     stats["self_intersections"] = inter.pairs;
+    nlohmann::json rundiag;  // diagnostics of this run: in the stage's report (stats), not in the artifact
     if (inter.pairs > 0) stats["self_intersection_at"] = inter.first;
+    {
+      // where the crossings are: per pair of wall faces the crossing triangles were swept from
+      // ("a-b", a <= b; "a-a": two triangles of one face's shell)
+      std::map<std::pair<int, int>, long> by;
+      for (auto [i, j] : inter.all) {
+        int a = out.shell_tri_face[i], b = out.shell_tri_face[j];
+        ++by[{std::min(a, b), std::max(a, b)}];
+      }
+      nlohmann::json jf = nlohmann::json::object();
+      for (auto& [k, c] : by) jf[std::to_string(k.first) + "-" + std::to_string(k.second)] = c;
+      rundiag["self_intersection_faces"] = jf;
+      // and by what joins the two faces: one face (its own shell folds), an edge (by its
+      // kind: junction, other concave, convex, sharp convex above 300 degrees through the fluid
+      // such as a trailing edge), a vertex only, or nothing (facing walls across a gap)
+      std::map<std::pair<int, int>, std::string> joined;
+      for (int e = 0; e < ne; ++e) {
+        const EdgeInfo& I = E[e];
+        if (I.kind != EdgeKind::wall_wall) continue;
+        std::string k = I.junction ? "junction_edge"
+                        : I.concave ? "concave_edge"
+                        : I.fluid_angle > 300 ? "sharp_convex_edge"
+                                              : "convex_edge";
+        joined.emplace(std::make_pair(std::min(I.a, I.b), std::max(I.a, I.b)), k);
+      }
+      std::vector<std::set<int>> fverts(nf);
+      for (int f = 0; f < nf; ++f)
+        if (wall[f])
+          for (int e : face_edges_cache[f])
+            for (int v : shape.edge_vertices(e)) fverts[f].insert(v);
+      std::map<std::string, long> kinds;
+      std::map<std::string, nlohmann::json> where;
+      for (auto& [key, c] : by) {
+        auto [a, b] = key;
+        std::string k;
+        if (a == b) k = "same_face";
+        else if (auto it = joined.find(key); it != joined.end()) k = it->second;
+        else {
+          bool v = false;
+          for (int x : fverts[a]) v |= fverts[b].count(x) > 0;
+          k = v ? "shared_vertex" : "separate_faces";
+        }
+        kinds[k] += c;
+        if (where[k].size() < 12) where[k].push_back(std::to_string(a) + "-" + std::to_string(b));
+      }
+      nlohmann::json jk = nlohmann::json::object();
+      for (auto& [k, c] : kinds) jk[k] = {{"pairs", c}, {"faces", where[k]}};
+      rundiag["self_intersection_kinds"] = jk;
+      if (const char* dbg = std::getenv("MESHFLOW_SHELL_DEBUG")) {  // every crossing pair, for analysis
+        std::FILE* fp = std::fopen(dbg, "w");
+        if (fp) {
+          for (auto [i, j] : inter.all) std::fprintf(fp, "%d %d\n", i, j);
+          std::fclose(fp);
+        }
+      }
+    }
     stats["min_clearance"] = {{"walls", clear_wall},
                               {"walls_over_thickness", rel_wall},
                               {"farfield", std::isfinite(clear_far) ? nlohmann::json(clear_far) : nlohmann::json(nullptr)},
                               {"walls_at", at_wall}};
     if (std::isfinite(clear_far)) stats["min_clearance"]["farfield_at"] = at_far;
     stats["faces_unsampled"] = faces_unsampled;
+    rundiag["junction_strip_fallback_faces"] = strip_fallback;
     if (!unsampled_why.empty()) stats["unsampled"] = unsampled_why;
     long nj = 0, nwall_other = 0, nww = 0;
     nlohmann::json jlist = nlohmann::json::array();
@@ -922,6 +1187,7 @@ struct Stage {
 
     auto& st = ctx.stats();
     for (auto& [k, v] : stats.items()) st[k] = v;
+    for (auto& [k, v] : rundiag.items()) st[k] = v;  // the run's report only, not the artifact header
     st["counts"] = h["counts"];
     st["shell_points"] = out.shell_points.size();
     st["shell_triangles"] = out.shell_tris.size();
@@ -936,7 +1202,7 @@ void run(StageContext& ctx) {
 }
 
 StageRegistrar reg({.kind = "shell",
-                    .version = 1,
+                    .version = 2,
                     .summary = "near-field shell bounded by the medial object: thickness/direction fields, prism and C-type hex junction blocks",
                     .libraries = {"CGAL " CGAL_VERSION_STR},
                     .run = run});

@@ -364,6 +364,15 @@ void Builder::junction_ends() {
       PB = mul(PB, 1.0 / bl.size());
       int e = side_edge(B);
       if (e >= 0 && !edge_corner.count(e)) {
+        // B faces sharing the side edge (the trailing-edge face and the wing surface, both
+        // partners of a body's junctions) share one corner on it: the mean of all their PB
+        std::vector<V3> pts;
+        for (auto& [B2, bl2] : byB)
+          if (side_edge(B2) == e)
+            for (auto [b, end] : bl2) pts.push_back(station(b, end).PB);
+        PB = V3{0, 0, 0};
+        for (auto& p : pts) PB = add(PB, p);
+        PB = mul(PB, 1.0 / pts.size());
         auto pr = S.project_to_edge(e, cv(PB));
         auto vs = S.edge_vertices(e);
         int cend = (vs[0] == V) ? 0 : 1;
@@ -371,6 +380,7 @@ void Builder::junction_ends() {
         cuts[e][cend] = {pr.t, n};
         ++R.edges_cut;
         pb_node[B] = n;
+        edge_corner[e] = n;
       } else if (e >= 0) {
         pb_node[B] = edge_corner[e];
       } else {
@@ -384,6 +394,9 @@ void Builder::junction_ends() {
     for (auto [b, end] : list) {
       auto& j = J[b];
       std::size_t k = end == 0 ? 0 : j.pa.size() - 1;
+      if (std::getenv("MESHFLOW_SWEEP_DEBUG"))
+        log("junction of edge " + std::to_string(j.edge) + " at vertex " + std::to_string(V) + ": PA node " +
+            std::to_string(pa_node[j.A]) + " PB node " + std::to_string(pb_node[j.B]) + " (B side edge " + std::to_string(side_edge(j.B)) + ")");
       j.pa[k] = pa_node[j.A], j.pc[k] = pc_node[j.A], j.pb[k] = pb_node[j.B];
     }
   }
@@ -769,7 +782,7 @@ void Builder::mesh_face(int f) {
     std::ostringstream o;
     o << "face " << f << ": loops";
     for (auto& l : loops) o << " " << l.size();
-    for (auto& l : loops) for (auto& p : l) o << " [" << p.uv[0] << "," << p.uv[1] << "]";
+    for (auto& l : loops) for (auto& p : l) o << " " << p.node << "[" << p.uv[0] << "," << p.uv[1] << "]";
     log(o.str());
   }
   in.normal = [&](double U, double V) {
@@ -815,6 +828,29 @@ void Builder::mesh_face(int f) {
     V3 fn = v3(S.face_normal(f, cu, cvv));
     if (dot(nrm, fn) < 0) std::swap(g[1], g[2]);
     face_tris[f].push_back(g);
+  }
+  // At a pole the parameter plane's pole segment collapses to one node: an edge x-y with the
+  // segment's two ends on opposite sides gives the triangles (pole, x, y) twice, a fold of the
+  // fan around the pole (the parametric body's nose). Both copies go: the pole's fan is closed
+  // by the triangles on either side of them, which share the edges pole-x and pole-y.
+  {
+    std::map<std::array<std::uint32_t, 3>, int> seen;
+    auto key = [](std::array<std::uint32_t, 3> g) {
+      std::sort(g.begin(), g.end());
+      return g;
+    };
+    for (auto& g : face_tris[f]) ++seen[key(g)];
+    std::size_t before = face_tris[f].size();
+    face_tris[f].erase(std::remove_if(face_tris[f].begin(), face_tris[f].end(),
+                                      [&](const std::array<std::uint32_t, 3>& g) { return seen[key(g)] == 2; }),
+                       face_tris[f].end());
+    for (auto& [k, c] : seen)
+      if (c > 2)
+        throw StageError("sweep: face " + std::to_string(f) + " has a triangle " + std::to_string(c) +
+                         " times over after mapping its parameter plane to 3D (a pole or seam folded); refine the face");
+    if (before != face_tris[f].size())
+      log("sweep: face " + std::to_string(f) + ": " + std::to_string((before - face_tris[f].size()) / 2) +
+          " folded triangle pair(s) at a pole removed");
   }
   ++R.faces_meshed;
 }

@@ -65,7 +65,7 @@ void run(StageContext& ctx) {
 }
 
 StageRegistrar reg({.kind = "sweep",
-                    .version = 1,
+                    .version = 2,
                     .summary = "surface meshes of all faces (CDT in the parameter plane) and the one-layer prism/hex near field",
                     .libraries = {},
                     .run = run});
