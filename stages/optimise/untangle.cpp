@@ -32,6 +32,7 @@ nlohmann::json UntangleReport::to_json() const {
           {"attempts", attempts},
           {"repaired", repaired},
           {"repaired_at_ring", repaired_at_ring},
+          {"skipped_in_failed_patch", skipped},
           {"nodes_moved", nodes_moved},
           {"max_move_relative", max_move},
           {"unresolved", unresolved},
@@ -243,8 +244,17 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
     return det3(J);
   };
 
+  // Invalid elements inside the largest patch of an element that could not be repaired: their own
+  // patches are nearly the same nodes and elements, so they are not tried again (an unrepairable
+  // cluster, e.g. a folded face on the CAD, would otherwise cost max_rings attempts per member).
+  std::vector<std::vector<char>> hopeless(m.blocks.size());
+  for (std::uint32_t bi = 0; bi < m.blocks.size(); ++bi) hopeless[bi].assign(valid[bi].size(), 0);
   for (const ElemRef& bad : invalid) {
     if (valid[bad.block][bad.index]) continue;  // repaired with an earlier patch
+    if (hopeless[bad.block][bad.index]) {
+      ++rep.skipped;
+      continue;
+    }
     // element size h: mean vertex-edge length
     double h = 0;
     {
@@ -333,6 +343,8 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
         } catch (const std::exception&) {
           // a failed line search leaves y at the last accepted point, which is a descent of the energy
         }
+        // a diverged line search can leave non-finite values: that attempt failed, nothing moves
+        if (!y.allFinite()) continue;
         // apply, check, keep or restore
         for (std::size_t i = 0; i < P.free.size(); ++i) {
           const std::uint32_t v = P.free[i];
@@ -382,6 +394,9 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
         done = true;
       }
     }
+    if (!done)
+      for (const ElemRef& r : patch)
+        if (!valid[r.block][r.index]) hopeless[r.block][r.index] = 1;
   }
 
   std::uint64_t running = 0;

@@ -27,6 +27,8 @@
 //   accept when every patch element that was valid stays valid and the element is valid by the
 //           Bezier bounds of stages/model/quality.hpp (the proof, not the samples); otherwise the
 //           patch is restored exactly and the next ring is tried.
+// An invalid element inside the largest patch of one that could not be repaired is not tried
+// again (its patches are nearly the same; it is counted as skipped and stays invalid).
 // Element vertices never move, nodes on the CAD never move, the mesh stays conforming (shared
 // nodes are single nodes). Sequential in mesh order, so the result is deterministic; the cost is
 // proportional to the number of invalid elements, not to the mesh.
@@ -54,6 +56,7 @@ struct UntangleOptions {
 struct UntangleReport {
   std::size_t invalid_before = 0, invalid_after = 0;  // invalid 3D elements of the whole mesh
   std::size_t attempts = 0, repaired = 0, nodes_moved = 0;
+  std::size_t skipped = 0;  // invalid elements inside the largest patch of one that could not be repaired: not tried
   std::vector<int> repaired_at_ring;                   // [ring-1] = elements repaired with that ring
   std::vector<std::uint64_t> unresolved;               // element tags still invalid (at most 100)
   double max_move = 0;                                  // largest node displacement / h of its patch
