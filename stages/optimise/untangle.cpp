@@ -16,6 +16,7 @@
 #include <cstdlib>
 #include <cmath>
 #include <map>
+#include <mutex>
 #include <tuple>
 #include <numeric>
 #include <stdexcept>
@@ -61,7 +62,9 @@ struct SampleTable {
 int sample_order(int P, bool dense) { return std::min(model::kMaxOrder, dense ? std::max(P + 2, 3 * (P - 1)) : P + 2); }
 
 const SampleTable& samples(Shape s, int order, bool dense) {
-  static std::map<std::tuple<int, int, bool>, SampleTable> cache;  // used from one thread only
+  static std::mutex mutex;
+  static std::map<std::tuple<int, int, bool>, SampleTable> cache;  // entries never move once made
+  std::lock_guard<std::mutex> lock(mutex);
   auto key = std::make_tuple(int(s), order, dense);
   auto it = cache.find(key);
   if (it != cache.end()) return it->second;
@@ -85,6 +88,7 @@ struct Patch {
   std::vector<std::uint32_t> free;          // node indices
   std::map<std::uint32_t, int> free_index;  // node -> position in free
   std::vector<ElemRef> elems;               // elements with at least one free node
+  std::vector<std::vector<int>> slots;      // per element and local node: position in free, or -1
   std::vector<double> jref;                 // straight det J per element
   std::vector<double> x0;                   // 3 * free.size()
   double h = 1, target = 0.2, spring = 1e-3;
@@ -97,18 +101,15 @@ struct Patch {
     g.setZero(y.size());
     double E = 0;
     std::vector<double> X;
-    std::vector<int> slot;
     for (std::size_t ie = 0; ie < elems.size(); ++ie) {
       const auto& b = m.blocks[elems[ie].block];
       const std::uint32_t* nodes = b.element(elems[ie].index);
       const auto& t = samples(b.shape, b.order, dense);
+      const std::vector<int>& slot = slots[ie];
       X.resize(std::size_t(t.n) * 3);
-      slot.assign(t.n, -1);
       for (int a = 0; a < t.n; ++a) {
-        auto f = free_index.find(nodes[a]);
-        if (f != free_index.end()) {
-          slot[a] = f->second;
-          for (int c = 0; c < 3; ++c) X[3 * a + c] = x0[3 * f->second + c] + h * y[3 * f->second + c];
+        if (slot[a] >= 0) {
+          for (int c = 0; c < 3; ++c) X[3 * a + c] = x0[3 * slot[a] + c] + h * y[3 * slot[a] + c];
         } else {
           X[3 * a] = m.x[nodes[a]];
           X[3 * a + 1] = m.y[nodes[a]];
@@ -311,12 +312,17 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
       for (const ElemRef& r : patch) {
         const auto& b = m.blocks[r.block];
         const std::uint32_t* en = b.element(r.index);
+        std::vector<int> slot(b.nodes_per_element(), -1);
         bool has = false;
-        for (int a = 0; a < b.nodes_per_element() && !has; ++a) has = P.free_index.count(en[a]) > 0;
+        for (int a = 0; a < b.nodes_per_element(); ++a) {
+          auto f = P.free_index.find(en[a]);
+          if (f != P.free_index.end()) slot[a] = f->second, has = true;
+        }
         if (!has) continue;
         const double j = straight_det(r);
         if (!(j > 0)) degenerate = true;
         P.elems.push_back(r);
+        P.slots.push_back(std::move(slot));
         P.jref.push_back(j);
       }
       if (degenerate) continue;  // a straight element is not valid: nothing to aim at
