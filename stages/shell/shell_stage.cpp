@@ -726,7 +726,36 @@ struct Stage {
     };
     // the strip boundary of a wall|wall junction: one shell point PC per station, shared by A and B
     std::map<std::pair<int, int>, int> sid;
+    // Ends: every wall|wall junction ending at a vertex shares one corner point there, the mean
+    // of their PC (and PA) at that end, as sweep shares one cross-section per vertex: the strips
+    // of consecutive junction edges (a pylon's faces along a wing) and the faces B between them
+    // then close at one point instead of overlapping around it.
+    std::map<int, std::pair<Vec3, Vec3>> end_sum;  // vertex -> (sum PA, sum PC)
+    std::map<int, int> end_count, end_id;
+    for (int e = 0; e < ne; ++e) {
+      const EdgeInfo& I = E[e];
+      if (!(I.junction && I.kind == EdgeKind::wall_wall) || I.t.empty()) continue;
+      for (int end = 0; end < 2; ++end) {
+        int v = end ? I.v1 : I.v0;
+        if (v < 0) continue;
+        StripStation q = strip_station(e, end ? static_cast<int>(I.t.size()) - 1 : 0);
+        auto& sum = end_sum[v];
+        sum.first = add(sum.first, q.PA), sum.second = add(sum.second, q.PC);
+        ++end_count[v];
+      }
+    }
     auto strip_id = [&](int e, int k) {
+      const EdgeInfo& I = E[e];
+      int n = static_cast<int>(I.t.size());
+      int v = k == 0 ? I.v0 : k == n - 1 ? I.v1 : -1;
+      if (v >= 0 && end_count.count(v)) {
+        auto it = end_id.find(v);
+        if (it != end_id.end()) return it->second;
+        double c = 1.0 / end_count[v];
+        int id = add_point(mul(end_sum[v].first, c), mul(end_sum[v].second, c), {});
+        end_id[v] = id;
+        return id;
+      }
       auto key = std::make_pair(e, k);
       auto it = sid.find(key);
       if (it != sid.end()) return it->second;
