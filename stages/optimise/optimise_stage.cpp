@@ -44,9 +44,10 @@ void run(StageContext& ctx) {
     ctx.progress(0.5, "untangling invalid elements");
     UntangleOptions uo;
     uo.max_rings = p.value("untangle_rings", 3);
+    uo.surface = p.value("untangle_surface", true);
     std::function<void(const std::string&)> dbg;
     if (std::getenv("MESHFLOW_UNTANGLE_DEBUG")) dbg = [&](const std::string& l) { ctx.log(l); };
-    ur = untangle(m, uo, ctx.threads(), dbg);
+    ur = untangle(m, uo, ctx.threads(), dbg, &shape);
   }
   ctx.progress(0.7, "writing");
   io::write_mesh(m, ctx.output("mesh", "mesh"), io::MeshFormat::MshBinary);
@@ -67,7 +68,8 @@ void run(StageContext& ctx) {
   if (do_untangle) {
     std::ostringstream u;
     u << "optimise: untangle: " << ur.invalid_before << " invalid elements -> " << ur.invalid_after << " (" << ur.repaired
-      << " patches repaired in " << ur.attempts << " attempts, " << ur.nodes_moved << " off-CAD nodes moved, largest move "
+      << " patches repaired in " << ur.attempts << " attempts, " << ur.repaired_sliding << " of them sliding "
+      << ur.surface_nodes_moved << " nodes on the CAD; " << ur.nodes_moved << " off-CAD nodes moved, largest move "
       << ur.max_move << " x element size, " << ur.seconds << " s)";
     ctx.log(u.str());
     for (auto t : ur.unresolved) ctx.log("optimise:   still invalid: element " + std::to_string(t));

@@ -2,15 +2,18 @@
 // Libraries: LBFGSpp (L-BFGS), Eigen (its vectors), TBB only through model::mesh_quality.
 #include "stages/optimise/untangle.hpp"
 
+#include "stages/cad/cad.hpp"
 #include "stages/model/basis.hpp"
 #include "stages/model/element.hpp"
 #include "stages/model/quality.hpp"
 
 #include <Eigen/Core>
+#include <Eigen/LU>
 #include <LBFGS.h>
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -35,6 +38,8 @@ nlohmann::json UntangleReport::to_json() const {
           {"repaired_at_ring", repaired_at_ring},
           {"skipped_in_failed_patch", skipped},
           {"nodes_moved", nodes_moved},
+          {"surface_nodes_moved", surface_nodes_moved},
+          {"repaired_sliding_on_cad", repaired_sliding},
           {"max_move_relative", max_move},
           {"unresolved", unresolved},
           {"seconds", seconds}};
@@ -49,28 +54,89 @@ struct ElemRef {
   bool operator==(const ElemRef& o) const { return block == o.block && index == o.index; }
 };
 
-// Basis gradients at the sample points of one (shape, order): dN[(s * n + a) * 3 + c].
+// Basis gradients at the sample points of one (shape, order): dN[(s * n + a) * 3 + c]. For the
+// Bezier lattice (tets, prisms), also the transform of det J's values at the points to its
+// Bernstein coefficients: T (tets), or Ta (triangle) x Tb (line) for prisms, the points ordered
+// s = i * nb + j (triangle point i, line point j).
 struct SampleTable {
   int n = 0, ns = 0;
   std::vector<double> dN;
+  Eigen::MatrixXd T, Ta, Tb;
 };
 
-// Sample lattice order: P + 2 (a P=4 tet: 84 points, prism: 28 x 7 = 196), and for a second
-// attempt the degree of det J on simplices, 3 (P - 1) (a P=4 tet: 220 points), capped at the
-// model's order limit. The samples only steer the optimisation; validity is decided by the
-// Bezier bounds afterwards.
-int sample_order(int P, bool dense) { return std::min(model::kMaxOrder, dense ? std::max(P + 2, 3 * (P - 1)) : P + 2); }
+// The sample lattices: 0 = order P + 2 (a P=4 tet: 84 points, prism: 28 x 7 = 196); 1 (a second
+// attempt) = order max(P + 2, 3 (P - 1)) (the degree of det J on a tet; a P=4 tet: 220 points),
+// capped at the model's order limit; 2 (a third attempt, tets and prisms) = the lattice of det
+// J's Bernstein coefficients (tet: degree 3 (P - 1); prism: 3P - 2 on the triangle x 3P - 1
+// along the layer, 66 x 12 points at P=4): the penalty then acts on the coefficients, whose
+// positivity proves validity, so a dip of det J between samples is seen. Other shapes: 1.
+// The samples only steer the optimisation; validity is decided by the Bezier bounds afterwards.
+constexpr int kMaxBezierDegree = 16;
+bool has_bezier_lattice(Shape s, int P) {
+  return (s == Shape::Tet && 3 * (P - 1) <= kMaxBezierDegree) || (s == Shape::Prism && 3 * P - 1 <= kMaxBezierDegree);
+}
+int sample_order(int P, int lattice) { return std::min(model::kMaxOrder, lattice >= 1 ? std::max(P + 2, 3 * (P - 1)) : P + 2); }
 
-const SampleTable& samples(Shape s, int order, bool dense) {
+double factorial(int k) {
+  double f = 1;
+  for (int i = 2; i <= k; ++i) f *= i;
+  return f;
+}
+
+// Values at the equispaced lattice of a degree-d simplex (dimension 1, 2 or 3, coordinates in
+// [0,1]) -> Bernstein coefficients: the inverse of the Bernstein collocation matrix. Written here
+// because the model's own transforms are internal to its validity check.
+Eigen::MatrixXd simplex_bezier_transform(const std::vector<std::array<int, 3>>& lat, int dim, int d) {
+  const int n = int(lat.size());
+  Eigen::MatrixXd M(n, n);
+  for (int q = 0; q < n; ++q) {
+    double l[4] = {1, 0, 0, 0};
+    for (int c = 0; c < dim; ++c) l[c + 1] = double(lat[q][c]) / d, l[0] -= l[c + 1];
+    for (int a = 0; a < n; ++a) {
+      int e[4] = {d, 0, 0, 0};
+      for (int c = 0; c < dim; ++c) e[c + 1] = lat[a][c], e[0] -= lat[a][c];
+      double v = factorial(d);
+      for (int c = 0; c <= dim; ++c) v *= std::pow(l[c], e[c]) / factorial(e[c]);
+      M(q, a) = v;
+    }
+  }
+  return M.fullPivLu().inverse();
+}
+
+std::vector<std::array<int, 3>> simplex_lattice(int dim, int d) {
+  std::vector<std::array<int, 3>> lat;
+  for (int i = 0; i <= d; ++i)
+    for (int j = 0; j <= (dim >= 2 ? d - i : 0); ++j)
+      for (int k = 0; k <= (dim >= 3 ? d - i - j : 0); ++k) lat.push_back({i, j, k});
+  return lat;
+}
+
+const SampleTable& samples(Shape s, int order, int lattice) {
   static std::mutex mutex;
-  static std::map<std::tuple<int, int, bool>, SampleTable> cache;  // entries never move once made
+  static std::map<std::tuple<int, int, int>, SampleTable> cache;  // entries never move once made
   std::lock_guard<std::mutex> lock(mutex);
-  auto key = std::make_tuple(int(s), order, dense);
+  if (lattice == 2 && !has_bezier_lattice(s, order)) lattice = 1;
+  auto key = std::make_tuple(int(s), order, lattice);
   auto it = cache.find(key);
   if (it != cache.end()) return it->second;
   const auto& b = model::LagrangeBasis::get(s, order);
-  const auto& pts = model::reference_nodes(s, sample_order(order, dense));
+  std::vector<model::Vec3> pts;
   SampleTable t;
+  if (lattice == 2 && s == Shape::Tet) {
+    const int d = 3 * (order - 1);
+    const auto lat = simplex_lattice(3, d);
+    for (const auto& l : lat) pts.push_back({double(l[0]) / d, double(l[1]) / d, double(l[2]) / d});
+    t.T = simplex_bezier_transform(lat, 3, d);
+  } else if (lattice == 2) {  // prism: triangle x line
+    const int da = 3 * order - 2, db = 3 * order - 1;
+    const auto la = simplex_lattice(2, da), lb = simplex_lattice(1, db);
+    for (const auto& i : la)
+      for (const auto& j : lb) pts.push_back({double(i[0]) / da, double(i[1]) / da, -1 + 2 * double(j[0]) / db});
+    t.Ta = simplex_bezier_transform(la, 2, da);
+    t.Tb = simplex_bezier_transform(lb, 1, db);
+  } else {
+    pts = model::reference_nodes(s, sample_order(order, lattice));
+  }
   t.n = b.size();
   t.ns = int(pts.size());
   t.dN.resize(std::size_t(t.ns) * t.n * 3);
@@ -83,33 +149,69 @@ double det3(const double J[9]) {
 }
 
 // The patch problem: free nodes, objective elements, their straight reference det J.
+// A free node is either a volume node (3 variables: (x - x0) / h) or a node inside a CAD face
+// (2 variables: (u - u0) / su, (v - v0) / sv with su = h / |S_u|, so a unit step moves it by
+// about h; x = S(u, v), gradient by the chain rule with the face's derivatives).
 struct Patch {
   const Mesh& m;
+  const cad::Shape* shape = nullptr;
   std::vector<std::uint32_t> free;          // node indices
   std::map<std::uint32_t, int> free_index;  // node -> position in free
   std::vector<ElemRef> elems;               // elements with at least one free node
   std::vector<std::vector<int>> slots;      // per element and local node: position in free, or -1
   std::vector<double> jref;                 // straight det J per element
   std::vector<double> x0;                   // 3 * free.size()
+  // per free node: first variable, face (-1: volume node), start parameters and scales, bounds
+  std::vector<int> var, face;
+  std::vector<double> uv0, scale, lo, hi;   // 2 per free node (unused for volume nodes)
+  int nvars = 0;
   double h = 1, target = 0.2, spring = 1e-3;
-  bool dense = false;  // sample lattice (sample_order)
+  int lattice = 0;  // sample lattice (sample_order)
 
   explicit Patch(const Mesh& mesh) : m(mesh) {}
 
-  // Energy and gradient at y (variables (x - x0) / h).
+  // Parameters of surface node i at y, clamped to the face's parameter bounds (clamped[c] set
+  // where a bound is active, so its gradient component is dropped).
+  void params(std::size_t i, const Eigen::VectorXd& y, double p[2], bool clamped[2]) const {
+    for (int c = 0; c < 2; ++c) {
+      p[c] = uv0[2 * i + c] + scale[2 * i + c] * y[var[i] + c];
+      clamped[c] = false;
+      if (p[c] < lo[2 * i + c]) p[c] = lo[2 * i + c], clamped[c] = true;
+      if (p[c] > hi[2 * i + c]) p[c] = hi[2 * i + c], clamped[c] = true;
+    }
+  }
+
+  // Energy and gradient at y.
   double operator()(const Eigen::VectorXd& y, Eigen::VectorXd& g) const {
     g.setZero(y.size());
     double E = 0;
+    // positions of the free nodes (and the face derivatives of the surface nodes)
+    std::vector<double> xf(3 * free.size()), gx(3 * free.size(), 0.0), du(3 * free.size()), dv(3 * free.size());
+    std::vector<char> clamp(2 * free.size(), 0);
+    for (std::size_t i = 0; i < free.size(); ++i) {
+      if (face[i] < 0) {
+        for (int c = 0; c < 3; ++c) xf[3 * i + c] = x0[3 * i + c] + h * y[var[i] + c];
+        continue;
+      }
+      double p[2];
+      bool cl[2];
+      params(i, y, p, cl);
+      clamp[2 * i] = cl[0], clamp[2 * i + 1] = cl[1];
+      const auto d = shape->face_eval(face[i], p[0], p[1]);
+      xf[3 * i] = d.p.x, xf[3 * i + 1] = d.p.y, xf[3 * i + 2] = d.p.z;
+      du[3 * i] = d.du.x, du[3 * i + 1] = d.du.y, du[3 * i + 2] = d.du.z;
+      dv[3 * i] = d.dv.x, dv[3 * i + 1] = d.dv.y, dv[3 * i + 2] = d.dv.z;
+    }
     std::vector<double> X;
     for (std::size_t ie = 0; ie < elems.size(); ++ie) {
       const auto& b = m.blocks[elems[ie].block];
       const std::uint32_t* nodes = b.element(elems[ie].index);
-      const auto& t = samples(b.shape, b.order, dense);
+      const auto& t = samples(b.shape, b.order, lattice);
       const std::vector<int>& slot = slots[ie];
       X.resize(std::size_t(t.n) * 3);
       for (int a = 0; a < t.n; ++a) {
         if (slot[a] >= 0) {
-          for (int c = 0; c < 3; ++c) X[3 * a + c] = x0[3 * slot[a] + c] + h * y[3 * slot[a] + c];
+          for (int c = 0; c < 3; ++c) X[3 * a + c] = xf[3 * slot[a] + c];
         } else {
           X[3 * a] = m.x[nodes[a]];
           X[3 * a + 1] = m.y[nodes[a]];
@@ -117,19 +219,18 @@ struct Patch {
         }
       }
       const double w = 1.0 / t.ns;
+      // det J and its cofactor matrix at every sample
+      thread_local std::vector<double> R, Cof;
+      R.resize(t.ns);
+      Cof.resize(9 * std::size_t(t.ns));
       for (int s = 0; s < t.ns; ++s) {
         const double* dN = &t.dN[std::size_t(s) * t.n * 3];
         double J[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
         for (int a = 0; a < t.n; ++a)
           for (int r = 0; r < 3; ++r)
             for (int c = 0; c < 3; ++c) J[3 * r + c] += X[3 * a + r] * dN[3 * a + c];
-        const double r = det3(J) / jref[ie];
-        if (r >= target) continue;
-        const double d = target - r;
-        E += w * d * d;
-        // dE/dr = -2 w d; dr/dJ = cof(J) / jref
-        const double k = -2 * w * d / jref[ie] * h;
-        double C[9];
+        R[s] = det3(J) / jref[ie];
+        double* C = &Cof[9 * std::size_t(s)];
         C[0] = J[4] * J[8] - J[5] * J[7];
         C[1] = J[5] * J[6] - J[3] * J[8];
         C[2] = J[3] * J[7] - J[4] * J[6];
@@ -139,15 +240,64 @@ struct Patch {
         C[6] = J[1] * J[5] - J[2] * J[4];
         C[7] = J[2] * J[3] - J[0] * J[5];
         C[8] = J[0] * J[4] - J[1] * J[3];
+      }
+      // dE/dR per sample: the penalty on the samples, or (Bezier lattice) on the Bernstein
+      // coefficients c = T R, dE/dR = T^T dE/dc
+      thread_local std::vector<double> dR;
+      dR.assign(t.ns, 0.0);
+      bool any = false;
+      if (t.T.size() || t.Ta.size()) {
+        // coefficients c = T R (tet) or, R as a (line x triangle) matrix, Tb R Ta^T (prism)
+        const Eigen::Index nb = t.T.size() ? t.ns : t.Tb.rows(), na = t.ns / nb;
+        const Eigen::Map<const Eigen::MatrixXd> Rm(R.data(), nb, na);
+        const Eigen::MatrixXd c = t.T.size() ? Eigen::MatrixXd(t.T * Rm) : Eigen::MatrixXd(t.Tb * Rm * t.Ta.transpose());
+        Eigen::MatrixXd dc = Eigen::MatrixXd::Zero(nb, na);
+        for (Eigen::Index k = 0; k < c.size(); ++k)
+          if (c(k) < target) {
+            const double d = target - c(k);
+            E += w * d * d;
+            dc(k) = -2 * w * d;
+            any = true;
+          }
+        if (any) {
+          Eigen::Map<Eigen::MatrixXd> dRm(dR.data(), nb, na);
+          if (t.T.size()) dRm = t.T.transpose() * dc;
+          else dRm = t.Tb.transpose() * dc * t.Ta;
+        }
+      } else {
+        for (int s = 0; s < t.ns; ++s)
+          if (R[s] < target) {
+            const double d = target - R[s];
+            E += w * d * d;
+            dR[s] = -2 * w * d;
+            any = true;
+          }
+      }
+      if (!any) continue;
+      for (int s = 0; s < t.ns; ++s) {
+        if (dR[s] == 0) continue;
+        const double* dN = &t.dN[std::size_t(s) * t.n * 3];
+        const double* C = &Cof[9 * std::size_t(s)];
+        const double k = dR[s] / jref[ie];  // dR/dJ = cof(J) / jref
         for (int a = 0; a < t.n; ++a) {
           if (slot[a] < 0) continue;
           for (int r2 = 0; r2 < 3; ++r2) {
             double v = 0;
             for (int c = 0; c < 3; ++c) v += C[3 * r2 + c] * dN[3 * a + c];
-            g[3 * slot[a] + r2] += k * v;
+            gx[3 * slot[a] + r2] += k * v;
           }
         }
       }
+    }
+    for (std::size_t i = 0; i < free.size(); ++i) {
+      const double* G = &gx[3 * i];
+      if (face[i] < 0) {
+        for (int c = 0; c < 3; ++c) g[var[i] + c] = h * G[c];
+        continue;
+      }
+      const double* D[2] = {&du[3 * i], &dv[3 * i]};
+      for (int c = 0; c < 2; ++c)
+        g[var[i] + c] = clamp[2 * i + c] ? 0.0 : scale[2 * i + c] * (G[0] * D[c][0] + G[1] * D[c][1] + G[2] * D[c][2]);
     }
     for (Eigen::Index i = 0; i < y.size(); ++i) {
       E += spring * y[i] * y[i];
@@ -159,7 +309,8 @@ struct Patch {
 
 }  // namespace
 
-UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const std::function<void(const std::string&)>& log) {
+UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const std::function<void(const std::string&)>& log,
+                        const cad::Shape* shape) {
   const auto t0 = std::chrono::steady_clock::now();
   UntangleReport rep;
   rep.repaired_at_ring.assign(std::max(1, opt.max_rings), 0);
@@ -188,6 +339,26 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
   if (!m.node_entity_dim.empty())
     for (std::size_t i = 0; i < N; ++i)
       if (m.node_entity_dim[i] >= 0 && m.node_entity_dim[i] < 3) fixed[i] = 1;
+  // nodes inside CAD faces that may slide on them (the second mode, with a shape): not an
+  // element's vertex, not on a pyramid, not in a periodic pair (its partner would not follow),
+  // with finite parameters on a face the shape has
+  std::vector<char> slides(N, 0);
+  if (shape && opt.surface && m.node_entity_dim.size() == N && m.node_u.size() == N && m.node_v.size() == N) {
+    std::vector<char> pinned(N, 0);
+    for (const auto& b : m.blocks) {
+      const int n = b.nodes_per_element(), nv = model::num_vertices(b.shape);
+      for (std::size_t e = 0; e < b.size(); ++e) {
+        const std::uint32_t* en = b.element(e);
+        for (int a = 0; a < n; ++a)
+          if (a < nv || b.shape == Shape::Pyramid) pinned[en[a]] = 1;
+      }
+    }
+    for (const auto& l : m.periodic)
+      for (auto [a, c] : l.nodes) pinned[a] = pinned[c] = 1;
+    for (std::size_t i = 0; i < N; ++i)
+      slides[i] = !pinned[i] && m.node_entity_dim[i] == 2 && m.node_entity_tag[i] >= 1 &&
+                  m.node_entity_tag[i] <= shape->num_faces() && std::isfinite(m.node_u[i]) && std::isfinite(m.node_v[i]);
+  }
   for (std::size_t i = 0; i < N; ++i) start[i + 1] += start[i];
   std::vector<ElemRef> adj(start[N]);
   {
@@ -283,30 +454,61 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
         grown.erase(std::unique(grown.begin(), grown.end()), grown.end());
         patch = std::move(grown);
       }
+      // mode 0 moves the off-CAD nodes only; mode 1 (with a shape) also slides the nodes inside
+      // CAD faces on their faces: a wall face folded on the CAD cannot be repaired by the volume
+      for (int mode = 0; mode < (shape && opt.surface ? 2 : 1) && !done; ++mode) {
       Patch P(m);
+      P.shape = shape;
       P.h = h;
       P.target = opt.target;
       P.spring = opt.spring;
-      // free nodes: off the CAD, not a vertex, every element in the patch
+      // free nodes: off the CAD (mode 1: or sliding on a CAD face), not a vertex, every element in the patch
+      bool any_sliding = false;
       for (const ElemRef& r : patch) {
         const auto& b = m.blocks[r.block];
         const std::uint32_t* en = b.element(r.index);
         for (int a = 0; a < b.nodes_per_element(); ++a) {
           const std::uint32_t v = en[a];
-          if (fixed[v] || P.free_index.count(v)) continue;
+          const bool slide = mode == 1 && slides[v];
+          if ((fixed[v] && !slide) || P.free_index.count(v)) continue;
           bool inside = true;
           for (std::uint32_t k = start[v]; k < start[v + 1] && inside; ++k)
             inside = std::binary_search(patch.begin(), patch.end(), adj[k]);
           if (!inside) continue;
           P.free_index.emplace(v, 0);
+          any_sliding = any_sliding || slide;
         }
       }
-      if (P.free_index.empty()) continue;
+      if (P.free_index.empty() || (mode == 1 && !any_sliding)) continue;
       int idx = 0;
       for (auto& [v, i] : P.free_index) {  // node order: deterministic
         i = idx++;
         P.free.push_back(v);
         P.x0.insert(P.x0.end(), {m.x[v], m.y[v], m.z[v]});
+        P.var.push_back(P.nvars);
+        if (mode == 1 && slides[v]) {
+          const int f = m.node_entity_tag[v] - 1;
+          const auto d = shape->face_eval(f, m.node_u[v], m.node_v[v]);
+          const auto bnd = shape->face_uv_bounds(f);
+          const auto per = shape->face_periods(f);
+          const double nu = std::sqrt(d.du.x * d.du.x + d.du.y * d.du.y + d.du.z * d.du.z);
+          const double nv = std::sqrt(d.dv.x * d.dv.x + d.dv.y * d.dv.y + d.dv.z * d.dv.z);
+          P.face.push_back(f);
+          P.uv0.insert(P.uv0.end(), {m.node_u[v], m.node_v[v]});
+          // a unit step moves the node by about h; a degenerate direction (a pole) does not move
+          P.scale.insert(P.scale.end(), {nu > 0 ? h / nu : 0.0, nv > 0 ? h / nv : 0.0});
+          // periodic directions are unbounded (the surface repeats), others stay in the face's box
+          P.lo.insert(P.lo.end(), {per[0] > 0 ? -INFINITY : std::min(bnd.u0, m.node_u[v]), per[1] > 0 ? -INFINITY : std::min(bnd.v0, m.node_v[v])});
+          P.hi.insert(P.hi.end(), {per[0] > 0 ? INFINITY : std::max(bnd.u1, m.node_u[v]), per[1] > 0 ? INFINITY : std::max(bnd.v1, m.node_v[v])});
+          P.nvars += 2;
+        } else {
+          P.face.push_back(-1);
+          P.uv0.insert(P.uv0.end(), {0.0, 0.0});
+          P.scale.insert(P.scale.end(), {0.0, 0.0});
+          P.lo.insert(P.lo.end(), {0.0, 0.0});
+          P.hi.insert(P.hi.end(), {0.0, 0.0});
+          P.nvars += 3;
+        }
       }
       bool degenerate = false;
       for (const ElemRef& r : patch) {
@@ -327,20 +529,26 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
       }
       if (degenerate) continue;  // a straight element is not valid: nothing to aim at
       // the target on the coarse samples first, then a higher one on the dense samples: samples
-      // just above the target can leave det J negative between them, which the Bezier check finds
-      for (int attempt = 0; attempt < 2 && !done; ++attempt) {
-        P.target = attempt == 0 ? opt.target : std::max(opt.target, std::min(1.0, 2.5 * opt.target));
-        P.dense = attempt == 1;
+      // just above the target can leave det J negative between them, which the Bezier check
+      // finds; then (tets, prisms) half the target on det J's Bernstein coefficients, which see the dips
+      for (int attempt = 0; attempt < 3 && !done; ++attempt) {
+        P.target = attempt == 0 ? opt.target : attempt == 1 ? std::max(opt.target, std::min(1.0, 2.5 * opt.target)) : 0.5 * opt.target;
+        P.lattice = attempt;
+        if (attempt == 2 && std::none_of(P.elems.begin(), P.elems.end(), [&](const ElemRef& r) {
+              return has_bezier_lattice(m.blocks[r.block].shape, m.blocks[r.block].order);
+            }))
+          break;  // no tet or prism: the third attempt would repeat the second
         ++rep.attempts;
 
         LBFGSpp::LBFGSParam<double> param;
         param.m = 8;
         param.epsilon = 1e-10;
         param.epsilon_rel = 0;
-        param.max_iterations = opt.max_iterations;
+        // the coefficients' penalty is stiffer (T's entries are large): more iterations
+        param.max_iterations = attempt == 2 ? 4 * opt.max_iterations : opt.max_iterations;
         param.max_linesearch = 40;
         LBFGSpp::LBFGSSolver<double> solver(param);
-        Eigen::VectorXd y = Eigen::VectorXd::Zero(Eigen::Index(P.free.size() * 3));
+        Eigen::VectorXd y = Eigen::VectorXd::Zero(P.nvars);
         double fx = 0;
         int iters = 0;
         const auto ta = std::chrono::steady_clock::now();
@@ -354,9 +562,18 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
         // apply, check, keep or restore
         for (std::size_t i = 0; i < P.free.size(); ++i) {
           const std::uint32_t v = P.free[i];
-          m.x[v] = P.x0[3 * i] + h * y[Eigen::Index(3 * i)];
-          m.y[v] = P.x0[3 * i + 1] + h * y[Eigen::Index(3 * i + 1)];
-          m.z[v] = P.x0[3 * i + 2] + h * y[Eigen::Index(3 * i + 2)];
+          if (P.face[i] < 0) {
+            m.x[v] = P.x0[3 * i] + h * y[P.var[i]];
+            m.y[v] = P.x0[3 * i + 1] + h * y[P.var[i] + 1];
+            m.z[v] = P.x0[3 * i + 2] + h * y[P.var[i] + 2];
+          } else {
+            double p[2];
+            bool cl[2];
+            P.params(i, y, p, cl);
+            const auto x = shape->face_point(P.face[i], p[0], p[1]);
+            m.x[v] = x.x, m.y[v] = x.y, m.z[v] = x.z;
+            m.node_u[v] = p[0], m.node_v[v] = p[1];
+          }
         }
         bool ok = true;
         std::vector<std::pair<ElemRef, char>> now;
@@ -369,8 +586,8 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
         if (log) {
           Eigen::VectorXd g0(y.size()), z0 = Eigen::VectorXd::Zero(y.size());
           char line[256];
-          std::snprintf(line, sizeof line, "untangle: element %u/%u ring %d: %zu free nodes, %zu elements, energy %g -> %g, %d iterations, %.2f s: %s",
-                        bad.block, bad.index, ring, P.free.size(), P.elems.size(), P(z0, g0), fx, iters,
+          std::snprintf(line, sizeof line, "untangle: element %u/%u ring %d%s: %zu free nodes, %zu elements, energy %g -> %g, %d iterations, %.2f s: %s",
+                        bad.block, bad.index, ring, mode ? " sliding on the CAD" : "", P.free.size(), P.elems.size(), P(z0, g0), fx, iters,
                         std::chrono::duration<double>(std::chrono::steady_clock::now() - ta).count(), ok ? "repaired" : "not repaired");
           log(line);
           for (auto& [r, v] : now)
@@ -385,19 +602,22 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
             m.x[v] = P.x0[3 * i];
             m.y[v] = P.x0[3 * i + 1];
             m.z[v] = P.x0[3 * i + 2];
+            if (P.face[i] >= 0) m.node_u[v] = P.uv0[2 * i], m.node_v[v] = P.uv0[2 * i + 1];
           }
           continue;
         }
         for (auto& [r, v] : now) valid[r.block][r.index] = v;
         for (std::size_t i = 0; i < P.free.size(); ++i) {
-          const double d = std::sqrt(y[Eigen::Index(3 * i)] * y[Eigen::Index(3 * i)] + y[Eigen::Index(3 * i + 1)] * y[Eigen::Index(3 * i + 1)] +
-                                     y[Eigen::Index(3 * i + 2)] * y[Eigen::Index(3 * i + 2)]);
-          if (d > 0) ++rep.nodes_moved;
+          const std::uint32_t v = P.free[i];
+          const double d = std::hypot(m.x[v] - P.x0[3 * i], m.y[v] - P.x0[3 * i + 1], m.z[v] - P.x0[3 * i + 2]) / h;
+          if (d > 0) ++(P.face[i] < 0 ? rep.nodes_moved : rep.surface_nodes_moved);
           rep.max_move = std::max(rep.max_move, d);
         }
         ++rep.repaired;
         ++rep.repaired_at_ring[ring - 1];
+        rep.repaired_sliding += mode == 1;
         done = true;
+      }
       }
     }
     if (!done)

@@ -24,12 +24,21 @@
 //           a second attempt from the same start uses 2.5 x target on the denser lattice of
 //           order 3(P-1) (the degree of det J on a tet): samples can be positive while det J dips
 //           below zero between them.
+//   slide   with the shape (the stage passes it), when moving the off-CAD nodes of a patch does
+//           not repair it, the same patch is tried again with the high-order nodes inside CAD
+//           faces free as well, sliding on their faces: variables (u, v), x = S(u, v) (never
+//           element vertices, nodes on CAD curves, pyramid nodes or nodes in periodic pairs;
+//           (u, v) stay in the face's parameter box unless the surface is periodic there). A
+//           wall triangle folded on the CAD (a thin triangle across a strongly curved region,
+//           whose optimised edges cross) is repaired this way; the nodes stay on the CAD and the
+//           node parameters are updated. Off-CAD first, so a repair that needs no surface move
+//           makes none.
 //   accept when every patch element that was valid stays valid and the element is valid by the
 //           Bezier bounds of stages/model/quality.hpp (the proof, not the samples); otherwise the
 //           patch is restored exactly and the next ring is tried.
 // An invalid element inside the largest patch of one that could not be repaired is not tried
 // again (its patches are nearly the same; it is counted as skipped and stays invalid).
-// Element vertices never move, nodes on the CAD never move, the mesh stays conforming (shared
+// Element vertices never move, nodes on the CAD move only on it (sliding), the mesh stays conforming (shared
 // nodes are single nodes). Sequential in mesh order, so the result is deterministic; the cost is
 // proportional to the number of invalid elements, not to the mesh.
 #pragma once
@@ -44,6 +53,8 @@
 #include <string>
 #include <vector>
 
+namespace meshflow::cad { class Shape; }
+
 namespace meshflow::optimise {
 
 struct UntangleOptions {
@@ -51,11 +62,13 @@ struct UntangleOptions {
   double target = 0.2;        // penalised below this det J / det J_straight at the samples
   double spring = 0;          // lambda, weight of a displacement spring (0: nodes move only while a sample is below target)
   int max_iterations = 400;   // L-BFGS iterations per patch attempt
+  bool surface = true;        // with a shape: try sliding the nodes inside CAD faces when off-CAD moves fail
 };
 
 struct UntangleReport {
   std::size_t invalid_before = 0, invalid_after = 0;  // invalid 3D elements of the whole mesh
   std::size_t attempts = 0, repaired = 0, nodes_moved = 0;
+  std::size_t surface_nodes_moved = 0, repaired_sliding = 0;  // nodes slid on CAD faces; patches that needed it
   std::size_t skipped = 0;  // invalid elements inside the largest patch of one that could not be repaired: not tried
   std::vector<int> repaired_at_ring;                   // [ring-1] = elements repaired with that ring
   std::vector<std::uint64_t> unresolved;               // element tags still invalid (at most 100)
@@ -67,7 +80,9 @@ struct UntangleReport {
 // Repairs the invalid 3D elements of `m` in place (see above). Never makes a valid element
 // invalid. `threads` is used only for the whole-mesh validity check.
 // `log`, when set, gets one line per patch attempt (a diagnostic: energies, sizes, outcome).
+// With `shape` (the one the mesh's node classification refers to), nodes inside CAD faces may
+// slide on them ("slide" above); without it they never move.
 UntangleReport untangle(model::Mesh& m, const UntangleOptions& opt, int threads = 0,
-                        const std::function<void(const std::string&)>& log = {});
+                        const std::function<void(const std::string&)>& log = {}, const cad::Shape* shape = nullptr);
 
 }  // namespace meshflow::optimise

@@ -9,6 +9,7 @@
 #include "stages/model/quality.hpp"
 #include "stages/model/topology.hpp"
 #include "stages/optimise/optimise.hpp"
+#include "stages/optimise/untangle.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -295,4 +296,59 @@ TEST_CASE("parameters in a chart shifted by a period (u - 2 pi) are unwrapped: s
     }
   CHECK(opttest::max_param_error(shifted, s) < 1e-7);
   CHECK(rs.energy_after == doctest::Approx(rp.energy_after).epsilon(1e-9));
+}
+
+TEST_CASE("untangle: a wall triangle folded on the CAD is repaired only by sliding its nodes on the CAD") {
+  // One layer of P=4 prisms on a sphere patch; the face-interior nodes of the first wall triangle
+  // are shifted in (u,v) towards its edges, so the triangle folds on the sphere and its prism is
+  // inverted at the wall. No off-CAD node can repair that. (At this shift the samples of the
+  // first two attempts are satisfied while det J is negative between them: only the third
+  // attempt, on det J's Bernstein coefficients, repairs it.)
+  const Shape& s = shapes().sphere;
+  opttest::Distortion d;
+  d.bunch = 0.0, d.bump = 0.0, d.interior_u = 0.45, d.interior_v = 0.45, d.interior_only = 0;
+  Mesh m0 = opttest::sphere_patch(s, 4, {}, d, 0.05);
+  const std::size_t bad = invalid_count(m0);
+  REQUIRE(bad > 0);
+  opt::UntangleOptions uo;
+  uo.max_rings = 1;  // the first ring suffices when sliding; more only makes the failing runs slower
+  Mesh volume_only = m0;
+  auto rv = opt::untangle(volume_only, uo, 1);  // no shape: nodes on the CAD never move
+  MESSAGE("volume only: " << rv.invalid_before << " -> " << rv.invalid_after);
+  CHECK(rv.invalid_after > 0);
+  CHECK(rv.surface_nodes_moved == 0);
+  uo.surface = false;
+  Mesh off = m0;
+  auto ro = opt::untangle(off, uo, 1, {}, &s);  // sliding turned off
+  CHECK(ro.invalid_after > 0);
+  CHECK(ro.surface_nodes_moved == 0);
+  uo.surface = true;
+  Mesh m = m0;
+  std::string log;
+  auto r = opt::untangle(m, uo, 1, [&](const std::string& l) { log += l + "\n"; }, &s);
+  MESSAGE(log);
+  MESSAGE("sliding: " << r.invalid_before << " -> " << r.invalid_after << ", " << r.repaired_sliding << " patches slid "
+                      << r.surface_nodes_moved << " nodes on the CAD, " << r.nodes_moved << " off it");
+  CHECK(r.invalid_before == bad);
+  CHECK(r.invalid_after == 0);
+  CHECK(invalid_count(m) == 0);
+  CHECK(r.repaired_sliding > 0);
+  CHECK(r.surface_nodes_moved > 0);
+  CHECK(opttest::max_param_error(m, s) < 1e-7);  // every node on the CAD is still on it, parameters updated
+  std::size_t vertices_moved = 0;
+  for (const auto& b : m.blocks)
+    for (std::size_t e = 0; e < b.size(); ++e)
+      for (int k = 0; k < model::num_vertices(b.shape); ++k) {
+        const auto v = b.element(e)[k];
+        vertices_moved += m.x[v] != m0.x[v] || m.y[v] != m0.y[v] || m.z[v] != m0.z[v];
+      }
+  CHECK(vertices_moved == 0);
+  // deterministic: the same bytes again
+  Mesh again = m0;
+  opt::untangle(again, uo, 2, {}, &s);
+  CHECK(again.x == m.x);
+  bool same_params = true;
+  for (std::size_t i = 0; i < m.num_nodes(); ++i)
+    same_params = same_params && (std::isnan(m.node_u[i]) ? std::isnan(again.node_u[i]) : again.node_u[i] == m.node_u[i]);
+  CHECK(same_params);
 }
