@@ -10,6 +10,7 @@ build=${1:-build}
 if [ -z "${RENDER_ONLY:-}" ]; then
   "$build/meshflow" run workflows/naca_wingtip.yaml
   "$build/meshflow" run workflows/wingtip_step.yaml
+  "$build/meshflow" run workflows/wing_body_parametric.yaml
 fi
 mkdir -p docs/img
 render() { /usr/bin/python3 scripts/render-cut.py "$@"; }
@@ -26,4 +27,9 @@ for w in naca:naca-wingtip:"make demo" step:wingtip-step:"wingtip_step.yaml"; do
   render "$v" docs/img/${tag}_tip.png "${tip[@]}" --title "$label: the rounded tip (cut at 32 % of the chord)"
   render "$v" docs/img/${tag}_root.png "${root[@]}" --title "$label: the root seen through the wall: junction hexes around the leading edge"
 done
+# the parametric wing-body (body along x, wing along y, z up): the wall-wall junction block split
+# 10 x 10, in a cut normal to the body axis at 30 % of the root chord (absolute coordinates)
+render ${VTU_DIR:-out}/wing-body-parametric/mesh.vtu docs/img/wing_body_junction.png --point 27.3 0 0 --normal 1 0 0 \
+  --box 27.1 27.3 2.86 3.38 -0.6 -0.2 --up 0 0 1 \
+  --title "wing-body junction cut at x = 27.3: body left, wing below; order 4, 10 x 10 layers"
 ls -la docs/img
