@@ -69,8 +69,14 @@
 //     sizing (equal increments of the integral of ds / h(s), equal arc length where h is constant);
 //   param "fraction": fractions in [0,1] of a straight cross-section edge, from its first
 //     point to its second as named ("0a": P0 -> PA).
-// Node placement follows the sizing (see above); the least-squares skew reduction across junction blocks
-// (paper §III.D, second step) is NOT done yet.
+// Node placement follows the sizing (see above). The paper's second step (§III.D: node positions
+// on the edges of a junction block moved by least squares to reduce the block's skew) is not
+// done: there the junction edge and its strip boundaries / outer corner curve are separate
+// curves whose nodes are placed independently, so the cross-sections through corresponding
+// nodes lean; here the strip boundaries and the corner curve carry no nodes of their own — the
+// nodes of "j<e>*" are the wall nodes of "w<e>" and sweep builds each cross-section of the block
+// from one wall node (stages/sweep/sweep.hpp, "Junction blocks"), so corresponding nodes lie in
+// one cross-section by construction and there is no skew for a least-squares step to remove.
 #pragma once
 
 #include <filesystem>
