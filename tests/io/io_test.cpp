@@ -532,7 +532,7 @@ TEST_CASE("a swapped element and a pushed P=4 edge node are invalid for us, for 
   }
 }
 
-TEST_CASE("bad input: clear errors naming the file and line/offset; commands exit 2") {
+TEST_CASE("bad input: clear errors naming the file and line/offset, commands exit 2") {
   auto write = [](const std::string& name, const std::string& text) {
     auto p = tmpdir() / name;
     std::ofstream(p, std::ios::binary) << text;
@@ -584,7 +584,7 @@ TEST_CASE("bad input: clear errors naming the file and line/offset; commands exi
   CHECK(run_cmd("quality", {}) == 2);
 }
 
-TEST_CASE("quality --json and convert commands; artifact type 'mesh' is registered") {
+TEST_CASE("quality --json and convert commands, artifact type 'mesh' is registered") {
   auto out = tmpdir() / "conv.vtu";
   CHECK(run_cmd("convert", {kData + "v4.1_cube_prism.msh", out.string()}) == 0);
   CHECK(fs::file_size(out) > 1000);

@@ -122,7 +122,7 @@ TEST_CASE("Lagrange bases interpolate at their nodes and reproduce linear fields
     }
 }
 
-TEST_CASE("straight elements are valid with scaled Jacobian 1; swapped vertices are invalid") {
+TEST_CASE("straight elements are valid with scaled Jacobian 1, swapped vertices are invalid") {
   for (Shape s : {Shape::Tri, Shape::Quad, Shape::Tet, Shape::Prism, Shape::Hex, Shape::Pyramid})
     for (int p = 1; p <= 6; ++p) {
       auto X = straight(s, p, 2, 1, 0.5);
@@ -211,7 +211,7 @@ TEST_CASE("sub-element mapping: the identity sub-element reproduces the parent's
   CHECK(lo[3 * 0 + 2] == doctest::Approx(-1.0));
 }
 
-TEST_CASE("topology of two P=2 tets sharing a face; conformity") {
+TEST_CASE("topology of two P=2 tets sharing a face, conformity") {
   Mesh m;
   auto X = straight(Shape::Tet, 2);
   for (size_t i = 0; i < X.size(); i += 3) m.add_node(X[i], X[i + 1], X[i + 2]);

@@ -131,7 +131,7 @@ TEST_CASE("untangle: interior high-order nodes pushed across their tets are repa
     }
 }
 
-TEST_CASE("untangle: an element inverted by a node on the boundary cannot be repaired; it is reported and the mesh is left exactly as it was") {
+TEST_CASE("untangle: an element inverted by a node on the boundary cannot be repaired, it is reported and the mesh is left exactly as it was") {
   Mesh m = cube_tets(2, 4);
   const auto& b = m.blocks[0];
   // a boundary face node pushed deep inside its tet and beyond: the only nodes that could

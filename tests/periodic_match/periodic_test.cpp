@@ -311,7 +311,7 @@ TEST_CASE("box with a hole: translation, paired faces, edges with orientation, v
   CHECK(dist(per::find(s, 1e-6).transform.translation, {-2, 0, 0}) < 1e-12);
 }
 
-TEST_CASE("sectors: rotation about x snapped to 2 pi / 7; about an oblique axis fitted") {
+TEST_CASE("sectors: rotation about x snapped to 2 pi / 7, about an oblique axis fitted") {
   Shape s = tagged_sectors({{0.3, 2 * M_PI / 7}});
   per::Match m = per::find(s, 1e-6);
   CHECK(m.transform.kind == "rotation");

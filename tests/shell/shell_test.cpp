@@ -169,7 +169,7 @@ TEST_CASE("shell on naca_wing, topology C: no self-intersection, junction blocks
   CHECK(unresolved.size() <= 2);  // the blunt trailing edge's tip arc and root edge only
 }
 
-TEST_CASE("shell on naca_wing, topology O: no junction blocks, no self-intersection; lfs bound thins the trailing edge") {
+TEST_CASE("shell on naca_wing, topology O: no junction blocks, no self-intersection, lfs bound thins the trailing edge") {
   Inputs& in = default_wing();
   TestContext o("shell", {{"topology", "O"}}, {in.shape, in.medial});
   o.run();
@@ -226,7 +226,7 @@ TEST_CASE("shell on naca_wing, topology O: no junction blocks, no self-intersect
   CHECK(worst <= g * 1.05 + 1e-9);
 }
 
-TEST_CASE("shell: the medial radius bounds the thickness in a narrow far field; too thick everywhere is an error") {
+TEST_CASE("shell: the medial radius bounds the thickness in a narrow far field, too thick everywhere is an error") {
   Inputs in(nlohmann::json{{"incidence_deg", 0.0}, {"farfield_chords", 0.5}, {"wake_chords", 0.5}, {"span", 0.8}});
   TestContext s("shell", {{"thickness", 0.15}}, {in.shape, in.medial});
   s.run();

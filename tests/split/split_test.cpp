@@ -173,7 +173,7 @@ TEST_CASE("property: random valid curved macro prisms and hexes (P = 2..4) give 
   CHECK(worst < 1e-12);
 }
 
-TEST_CASE("geometric progression: layer heights of a straight prism and a straight junction hex; first_height") {
+TEST_CASE("geometric progression: layer heights of a straight prism and a straight junction hex, first_height") {
   // straight prism: wall triangle at z = 0, thickness T = 0.3 along z (top wall variant too)
   for (int top = 0; top < 2; ++top) {
     const int P = 3;

@@ -4,6 +4,7 @@
 
 #include <iostream>
 #include <sstream>
+#include <stdexcept>
 
 #include <doctest/doctest.h>
 
@@ -103,6 +104,23 @@ Cli run_cli(std::vector<std::string> args) {
   std::cout.rdbuf(o);
   std::cerr.rdbuf(e);
   return {code, out.str(), err.str()};
+}
+
+std::string workflow_without(const fs::path& src, const fs::path& dst, const std::vector<std::string>& drop) {
+  std::istringstream in(read_text(src));
+  std::ostringstream out;
+  std::string line;
+  std::vector<int> found(drop.size(), 0);
+  while (std::getline(in, line)) {
+    bool skip = false;
+    for (std::size_t k = 0; k < drop.size(); ++k)
+      if (line.rfind("  " + drop[k] + ":", 0) == 0) skip = true, ++found[k];
+    if (!skip) out << line << "\n";
+  }
+  for (std::size_t k = 0; k < drop.size(); ++k)
+    if (found[k] != 1) throw std::runtime_error("workflow_without: '" + drop[k] + "' is not one entry of " + src.string());
+  write_text(dst, out.str());
+  return dst.string();
 }
 
 }  // namespace mftest
