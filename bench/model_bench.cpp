@@ -8,7 +8,8 @@
 //   - validity + quality of stretched boundary layers: the split tests' cylinder-on-plate
 //     junction near field at P=4 split into 10 layers (ratio 1.5; prisms and hexes of aspect
 //     ratio up to ~450), one thread.
-// Writes bench/results/model.md. Usage: model_bench [cubes_per_side=56] (6 n^3 tets).
+// Writes bench/results/model.md. Usage: model_bench [cubes_per_side=56] (6 n^3 tets) [quality]
+// (`quality`: only the validity + quality rate, printed; no results file).
 #include "../tests/split/builders.hpp"
 #include "stages/io/mesh_io.hpp"
 #include "stages/split/split.hpp"
@@ -140,6 +141,11 @@ int main(int argc, char** argv) {
   for (auto& e : q[0]) invalid += !e.valid, sampled += e.sampled, inconclusive += e.inconclusive;
   q.clear();
   q.shrink_to_fit();
+  if (argc > 2 && std::string(argv[2]) == "quality") {  // quick profiling run: no stats, IO or results file
+    std::cout << ne / c_quality << " elements per CPU second (" << c_quality << " s CPU, " << t_quality
+              << " s wall), invalid " << invalid << ", inconclusive " << inconclusive << "\n";
+    return invalid == 0 ? 0 : 1;
+  }
   t0 = now();
   c0 = cpu_now();
   auto stats = mesh_stats(m, 1);

@@ -10,6 +10,7 @@
 #include <tbb/task_arena.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cstdio>
 #include <cstdlib>
 #include <cmath>
@@ -22,6 +23,8 @@
 namespace meshflow::model {
 
 namespace {
+
+std::atomic<bool> g_tet_perturbation_proof{true};  // set_tet_perturbation_proof
 
 using LD = long double;
 
@@ -335,6 +338,12 @@ struct JacobianSpace {
   // for a P=4 tet 46k instead of 69k multiply-adds per element.
   Eigen::MatrixXd Hs, E;
   bool factored = false;
+  // Tets of order >= 2, the perturbation proof (see tet_perturbation_proof): Bm (m x m) = the
+  // Lagrange -> Bernstein transform of degree P-1 on the tet (long double, rounded once), its
+  // infinity norm, and lamH[c] = max_j sum_i |Hs(c m + j, i)|.
+  Eigen::MatrixXd Bm;
+  double normBm = 0, lamH[3] = {0, 0, 0};
+  bool perturb = false;
   int jterms = 0;                    // rounded terms per J entry (the guard's n)
   Eigen::MatrixXd T;                 // lagrange values -> bezier coefficients (simplices)
   Eigen::MatrixXd Ta, Tb;            // factors: 1D (quad/hex: every axis) or triangle x line (prism)
@@ -530,6 +539,28 @@ struct JacobianSpace {
         }
       }
       factored = true;
+      if (tet) {  // the perturbation proof's tables
+        using MatL = Eigen::Matrix<LD, Eigen::Dynamic, Eigen::Dynamic>;
+        MatL M(m, m);
+        std::vector<std::array<int, 3>> ex(m);  // Bernstein exponents of x, y, z (rounded lattice)
+        for (int a = 0; a < m; ++a)
+          for (int c = 0; c < 3; ++c) ex[a][c] = (int)std::lround(dp[a][c] * dd);
+        for (int q = 0; q < m; ++q)
+          for (int a = 0; a < m; ++a) {
+            const LD x = (LD)dp[q][0], y = (LD)dp[q][1], z = (LD)dp[q][2];
+            const int a0 = dd - ex[a][0] - ex[a][1] - ex[a][2];
+            LD c = 1;
+            for (int k = 1; k <= dd; ++k) c *= k;
+            for (int e : {a0, ex[a][0], ex[a][1], ex[a][2]})
+              for (int k = 2; k <= e; ++k) c /= k;
+            M(q, a) = c * std::pow(1 - x - y - z, (LD)a0) * std::pow(x, (LD)ex[a][0]) * std::pow(y, (LD)ex[a][1]) *
+                      std::pow(z, (LD)ex[a][2]);
+          }
+        Bm = MatL(M.fullPivLu().inverse()).cast<double>();
+        normBm = Bm.cwiseAbs().rowwise().sum().maxCoeff();
+        for (int c = 0; c < 3; ++c) lamH[c] = Hs.middleRows(c * m, m).cwiseAbs().rowwise().sum().maxCoeff();
+        perturb = true;
+      }
       jterms = n + m;
       for (int c = 0; c < 3; ++c) {  // abs sums of the two-stage computation
         lambda[c] = 0;
@@ -1040,13 +1071,86 @@ void hex_bezier_validity(int P, const double* X, ElementQuality& q) {
   }
 }
 
+// ---- Tets: the perturbation proof (the fast path of the validity check) ----
+// J(xi) of an order-P tet is a matrix of polynomials of degree P-1; their Bernstein
+// coefficients B_a (m per entry) come from J at the nodes of the order P-1 lattice (Hs X, which
+// the sampling computes anyway) by one small transform Bm (9 m^2 multiply-adds: 3.6k for P=4).
+// Let K be (the computed inverse of) the mean of the coefficients, M(xi) = K J(xi) - I. If
+// det K > 0 and ||M(xi)|| < 1 for every xi, every eigenvalue of K J(xi) = I + M(xi) lies in the
+// disc |lambda - 1| < 1, so det(K J(xi)) > 0 and det J(xi) = det(K J(xi)) / det K > 0 on the
+// whole closed element: a proof of validity. ||M(xi)|| is bounded by the infinity (row sum) and
+// the one (column sum) norms of the entrywise bounds max_a |M_a| (Bernstein polynomials are a
+// non-negative partition of unity), each coefficient enlarged by its rounding bound. Elements
+// proven this way skip the values -> Bezier transform of det J (T V: 48k multiply-adds per P=4
+// tet) and its subdivision; the others (strongly curved or invalid) take the Bezier path
+// unchanged. The test is sufficient, never necessary, so it cannot call an invalid element valid.
+bool tet_perturbation_proof(const JacobianSpace& sp, const Eigen::MatrixXd& HX, int e, const double Rc[9]) {
+  constexpr double u = std::numeric_limits<double>::epsilon() / 2;
+  const int m = (int)sp.Bm.rows(), n = (int)sp.Hs.cols();
+  thread_local std::vector<double> B;
+  B.resize(9 * static_cast<std::size_t>(m));
+  double A[9];
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) {
+      const double* v = HX.col(3 * e + r).data() + c * m;
+      double* b = &B[(3 * r + c) * m];
+      double sum = 0;
+      for (int a = 0; a < m; ++a) {
+        double t = 0;
+        for (int j = 0; j < m; ++j) t += sp.Bm(a, j) * v[j];
+        b[a] = t;
+        sum += t;
+      }
+      A[3 * r + c] = sum / m;
+    }
+  const double c0 = A[4] * A[8] - A[5] * A[7], c1 = A[5] * A[6] - A[3] * A[8], c2 = A[3] * A[7] - A[4] * A[6];
+  const double detA = A[0] * c0 + A[1] * c1 + A[2] * c2;
+  if (!(detA > 0) || !std::isfinite(detA)) return false;
+  const double K[9] = {c0 / detA, (A[2] * A[7] - A[1] * A[8]) / detA, (A[1] * A[5] - A[2] * A[4]) / detA,
+                       c1 / detA, (A[0] * A[8] - A[2] * A[6]) / detA, (A[2] * A[3] - A[0] * A[5]) / detA,
+                       c2 / detA, (A[1] * A[6] - A[0] * A[7]) / detA, (A[0] * A[4] - A[1] * A[3]) / detA};
+  // det K > 0 beyond its rounding (6 triple products, 5 sums: < 8u of the sum of their moduli)
+  const double t[6] = {K[0] * K[4] * K[8], -K[0] * K[5] * K[7], -K[1] * K[3] * K[8],
+                       K[1] * K[5] * K[6],  K[2] * K[3] * K[7], -K[2] * K[4] * K[6]};
+  double detK = 0, detKabs = 0;
+  for (double x : t) detK += x, detKabs += std::abs(x);
+  if (!(detK > 1.01 * 8 * u * detKabs)) return false;
+  // rounding of B(s, c, a) (Hs X: n products of node offsets bounded by R_s, then Bm: m terms;
+  // the tables' entries rounded once from long double; the offsets rounded once)
+  double errB[9];
+  for (int s = 0; s < 3; ++s)
+    for (int c = 0; c < 3; ++c) errB[3 * s + c] = 1.01 * (n + m + 6) * u * sp.normBm * sp.lamH[c] * Rc[s];
+  double S[9];
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) {
+      const double k0 = K[3 * r], k1 = K[3 * r + 1], k2 = K[3 * r + 2];
+      const double a0 = std::abs(k0), a1 = std::abs(k1), a2 = std::abs(k2), d = r == c ? 1.0 : 0.0;
+      const double* b0 = &B[(0 + c) * m];
+      const double* b1 = &B[(3 + c) * m];
+      const double* b2 = &B[(6 + c) * m];
+      double mx = 0;
+      for (int a = 0; a < m; ++a) {
+        const double v = k0 * b0[a] + k1 * b1[a] + k2 * b2[a] - d;
+        const double w = std::abs(v) + 5.05 * u * (a0 * std::abs(b0[a]) + a1 * std::abs(b1[a]) + a2 * std::abs(b2[a]) + d);
+        mx = w > mx ? w : mx;
+      }
+      S[3 * r + c] = (mx + a0 * errB[c] + a1 * errB[3 + c] + a2 * errB[6 + c]) * (1 + 8 * u);
+    }
+  double ninf = 0, n1 = 0;
+  for (int r = 0; r < 3; ++r) ninf = std::max(ninf, S[3 * r] + S[3 * r + 1] + S[3 * r + 2]);
+  for (int c = 0; c < 3; ++c) n1 = std::max(n1, S[c] + S[3 + c] + S[6 + c]);
+  return std::min(ninf, n1) * (1 + 4 * u) < 1;
+}
+
 void classify(const JacobianSpace& sp, const double* X, const double* normal, const double* vals,
-              const double* coef, double guard, ElementQuality& q) {
+              const double* coef, double guard, ElementQuality& q, bool proven = false) {
   const int np = (int)sp.pts.size();
   q.min_det = *std::min_element(vals, vals + np);
   q.max_det = *std::max_element(vals, vals + np);
   q.aspect_ratio = aspect(sp.shape, X);
-  if (!sp.bezier && sp.shape == Shape::Hex && q.min_det > 0) {
+  if (proven) {  // tet_perturbation_proof (a sample <= 0 would contradict it: only by rounding)
+    q.valid = q.min_det > 0;
+  } else if (!sp.bezier && sp.shape == Shape::Hex && q.min_det > 0) {
     hex_bezier_validity(sp.order, X, q);  // Bernstein arithmetic (proof), see above
   } else if (!sp.bezier && sp.shape == Shape::Hex) {
     q.valid = false;  // a sample with det J <= 0
@@ -1073,10 +1177,12 @@ void evaluate_chunk(const JacobianSpace& sp, const Eigen::MatrixXd& X, int count
   H.resize(count);
   thread_local std::vector<double> Jp;
   Jp.resize(9 * np);
-  Eigen::MatrixXd GX, GXc[3];
+  Eigen::MatrixXd GX, GXc[3], HX;
+  thread_local std::vector<char> proven;
+  proven.assign(count, 0);
   if (sp.factored) {
     const int m = (int)sp.E.cols();
-    const Eigen::MatrixXd HX = sp.Hs * X;  // (3m) x (3count)
+    HX.noalias() = sp.Hs * X;  // (3m) x (3count)
     for (int c = 0; c < sp.dim; ++c) GXc[c].noalias() = sp.E * HX.middleRows(c * m, m);  // np x (3count)
   } else if (!sp.tensor) {
     GX.noalias() = sp.G * X;  // (3np) x (3count)
@@ -1087,6 +1193,20 @@ void evaluate_chunk(const JacobianSpace& sp, const Eigen::MatrixXd& X, int count
       tensor_jacobians(sp.te, xyz[e], Jp.data(), Rc);
     } else {
       dense_offsets(num_nodes(sp.shape, sp.order), xyz[e], Rc);
+      if (sp.perturb && sp.factored && sp.dim == 3 && g_tet_perturbation_proof.load(std::memory_order_relaxed) &&
+          (proven[e] = tet_perturbation_proof(sp, HX, e, Rc))) {
+        // proven valid: det J at the samples (min/max for the scaled Jacobian) straight from the
+        // product's columns, the same formula as planar_det; no copy, no rounding guard
+        const double *j0 = GXc[0].col(3 * e).data(), *j1 = GXc[1].col(3 * e).data(), *j2 = GXc[2].col(3 * e).data();
+        const double *j3 = GXc[0].col(3 * e + 1).data(), *j4 = GXc[1].col(3 * e + 1).data(), *j5 = GXc[2].col(3 * e + 1).data();
+        const double *j6 = GXc[0].col(3 * e + 2).data(), *j7 = GXc[1].col(3 * e + 2).data(), *j8 = GXc[2].col(3 * e + 2).data();
+        double* v = V.col(e).data();
+        for (int p = 0; p < np; ++p)
+          v[p] = j0[p] * (j4[p] * j8[p] - j5[p] * j7[p]) - j1[p] * (j3[p] * j8[p] - j5[p] * j6[p]) +
+                 j2[p] * (j3[p] * j7[p] - j4[p] * j6[p]);
+        H[e] = 0;
+        continue;
+      }
       for (int r = 0; r < 3; ++r)
         for (int c = 0; c < 3; ++c) {
           double* jp = &Jp[(3 * r + c) * np];
@@ -1103,16 +1223,34 @@ void evaluate_chunk(const JacobianSpace& sp, const Eigen::MatrixXd& X, int count
     const double vmax = V.col(e).cwiseAbs().maxCoeff();
     H[e] = coefficient_guard(sp, sp.jterms, vmax, h2, cm, sp.lambda, Rc);
   }
-  Eigen::MatrixXd C(np, count);
-  if (sp.T.size())
-    C.noalias() = sp.T * V;
-  else if (sp.bezier)
-    for (int e = 0; e < count; ++e) sp.to_bezier(V.col(e).data(), C.col(e).data());
+  // Bezier coefficients of det J for the elements the perturbation proof did not decide
+  thread_local std::vector<int> rest;
+  rest.clear();
   for (int e = 0; e < count; ++e)
-    classify(sp, xyz[e], normals + 3 * e, V.col(e).data(), sp.bezier ? C.col(e).data() : nullptr, H[e], out[e]);
+    if (!proven[e]) rest.push_back(e);
+  Eigen::MatrixXd C(np, (Eigen::Index)rest.size());
+  if (sp.T.size() && !rest.empty()) {
+    if ((int)rest.size() == count) {
+      C.noalias() = sp.T * V;
+    } else {
+      Eigen::MatrixXd Vr(np, (Eigen::Index)rest.size());
+      for (std::size_t k = 0; k < rest.size(); ++k) Vr.col(k) = V.col(rest[k]);
+      C.noalias() = sp.T * Vr;
+    }
+  } else if (sp.bezier) {
+    for (std::size_t k = 0; k < rest.size(); ++k) sp.to_bezier(V.col(rest[k]).data(), C.col(k).data());
+  }
+  for (std::size_t k = 0; k < rest.size(); ++k) {
+    const int e = rest[k];
+    classify(sp, xyz[e], normals + 3 * e, V.col(e).data(), sp.bezier ? C.col(k).data() : nullptr, H[e], out[e]);
+  }
+  for (int e = 0; e < count; ++e)
+    if (proven[e]) classify(sp, xyz[e], normals + 3 * e, V.col(e).data(), nullptr, H[e], out[e], true);
 }
 
 }  // namespace
+
+void set_tet_perturbation_proof(bool on) { g_tet_perturbation_proof = on; }
 
 ElementQuality element_quality(Shape s, int order, const double* X, const double* normal) {
   ElementQuality q;

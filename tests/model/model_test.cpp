@@ -394,3 +394,48 @@ TEST_CASE("thin boundary layers: 10 split P=4 layers of aspect ratio > 1000 are 
     }
   }
 }
+
+TEST_CASE("tets: the perturbation proof gives the same verdicts as the Bezier path, P=2..6") {
+  // Random curved tets from barely to strongly perturbed: every verdict with the fast path (the
+  // perturbation proof first) equals the verdict of the Bezier path alone; both verdicts occur;
+  // and the fast path's min det J is never
+  // below the Bezier path's (the latter may add subdivision samples, never remove lattice points).
+  // (That the fast path proves elements at all is measured by bench/model_bench.)
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> U(-1, 1);
+  for (int p = 2; p <= 6; ++p) {
+    int valid = 0, invalid = 0, differ = 0;
+    double t_fast = 0, t_bezier = 0;
+    for (int trial = 0; trial < 200; ++trial) {
+      auto X = straight(Shape::Tet, p, 1 + 0.5 * U(rng), 1 + 0.5 * U(rng), 1 + 0.5 * U(rng));
+      const double amp = 0.3 * double(trial % 20) / 19.0;  // 0 .. 0.3 of the element size
+      for (size_t i = 3 * 4; i < X.size(); ++i) X[i] += amp * U(rng) / p;  // high-order nodes only
+      set_tet_perturbation_proof(true);
+      auto t0 = std::chrono::steady_clock::now();
+      auto fast = element_quality(Shape::Tet, p, X.data());
+      auto t1 = std::chrono::steady_clock::now();
+      set_tet_perturbation_proof(false);
+      auto slow = element_quality(Shape::Tet, p, X.data());
+      auto t2 = std::chrono::steady_clock::now();
+      t_fast += std::chrono::duration<double>(t1 - t0).count();
+      t_bezier += std::chrono::duration<double>(t2 - t1).count();
+      INFO("P=" << p << " trial " << trial << " amplitude " << amp);
+      CHECK(fast.valid == slow.valid);
+      CHECK_FALSE(fast.inconclusive);
+      differ += fast.valid != slow.valid;
+      if (slow.valid) {
+        ++valid;
+        CHECK(fast.min_det >= slow.min_det);
+        CHECK(fast.max_det == slow.max_det);
+      } else {
+        ++invalid;
+      }
+    }
+    set_tet_perturbation_proof(true);
+    // (times include the first call's one-time tables, which the fast path builds)
+    MESSAGE("P=" << p << ": " << valid << " valid, " << invalid << " invalid, " << differ << " verdicts differ; time fast "
+                 << t_fast << " s, Bezier only " << t_bezier << " s");
+    CHECK(valid > 20);
+    CHECK(invalid > 10);
+  }
+}
