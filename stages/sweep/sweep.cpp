@@ -611,9 +611,13 @@ void Builder::mesh_face(int f) {
     auto pr = std::isnan(hint[0]) ? S.project_to_face(f, cv(X(n))) : S.project_to_face(f, cv(X(n)), cad::Vec2{hint[0], hint[1]});
     return {pr.u, pr.v};
   };
-  for (auto& wire : S.face_wires(f)) {
+  // One wire's loop in the (unwrapped) parameter plane; flip[i]: run use i against the wire's
+  // orientation (see the closure check below).
+  auto build_wire = [&](const std::vector<cad::EdgeUse>& wire, const std::vector<char>& flip) {
     std::vector<LP> raw;
-    for (auto& eu : wire) {
+    for (std::size_t iu = 0; iu < wire.size(); ++iu) {
+      cad::EdgeUse eu = wire[iu];
+      if (flip[iu]) eu.reversed = !eu.reversed;
       int e = eu.edge;
       if (S.edge_degenerate(e)) {
         auto r = S.edge_range(e);
@@ -687,6 +691,53 @@ void Builder::mesh_face(int f) {
         if (std::abs(d) > 0.75 * per[k]) raw[i].uv[k] -= per[k] * std::round(d / per[k]);
       }
     }
+    // the loop's last point and its first, one node at one place after unwrapping (a wrapped
+    // face's seam ends where its rebuilt wire starts)
+    while (raw.size() > 3 && raw.front().node == raw.back().node &&
+           std::abs(raw.front().uv[0] - raw.back().uv[0]) + std::abs(raw.front().uv[1] - raw.back().uv[1]) <
+               1e-9 * (1 + std::abs(raw.front().uv[0]) + std::abs(raw.front().uv[1])))
+      raw.pop_back();
+    return raw;
+  };
+  // A wire closes in the plane when its closing segment (last point -> first) does not jump by
+  // most of a period (a pole's segment may). A wrapped face (periodic in u, bounded by two closed
+  // edges and a seam used twice, e.g. a blade lofted around its sections) whose closed edges
+  // both run the same way round (Rotor 67's blade: hub and casing curves both u 1 -> 0, the seam
+  // up at u = 1 and down at u = 0) does not: the unwrapped chain ends two periods away from its
+  // start and the loop crosses the whole domain. The wire is then rebuilt with the first closed,
+  // full-period edge use (or its junction/slide curve) run the other way, which makes it the
+  // boundary of the face's band [0, period] x [v0, v1]; the 3D face is the same either way (an
+  // orientation defect of the wire, not of the geometry).
+  auto per_f = S.face_periods(f);
+  auto closes = [&](const std::vector<LP>& raw) {
+    if (raw.size() < 3 || raw.back().pole) return true;
+    for (int k = 0; k < 2; ++k)
+      if (per_f[k] > 0 && std::abs(raw.front().uv[k] - raw.back().uv[k]) > 0.75 * per_f[k]) return false;
+    return true;
+  };
+  for (auto& wire : S.face_wires(f)) {
+    std::vector<char> flip(wire.size(), 0);
+    std::vector<LP> raw = build_wire(wire, flip);
+    if (!closes(raw)) {
+      bool fixed = false;
+      for (std::size_t iu = 0; iu < wire.size() && !fixed; ++iu) {
+        int e = wire[iu].edge;
+        auto vs = S.edge_vertices(e);
+        if (S.edge_degenerate(e) || S.edge_is_seam(e, f) || vs[0] != vs[1]) continue;
+        flip[iu] = 1;
+        auto r2 = build_wire(wire, flip);
+        if (closes(r2)) {
+          raw = std::move(r2), fixed = true;
+          log("sweep: face " + std::to_string(f) + ": the wire does not close in the parameter plane (wrapped face); closed edge " +
+              std::to_string(e) + " taken the other way round");
+        }
+        flip[iu] = 0;
+      }
+      if (!fixed)
+        throw StageError("sweep: face " + std::to_string(f) + " (" + cad::tag_name(S.face_tag(f)) + ", " + S.face_surface_type(f) +
+                         "): a boundary loop does not close in the parameter plane (it ends a period away from its start) "
+                         "and no closed edge of the loop can be reversed to close it; heal the face (its wire orientation)");
+    }
     if (raw.size() >= 3) loops.push_back(std::move(raw));
   }
   if (loops.empty()) return;
@@ -705,6 +756,16 @@ void Builder::mesh_face(int f) {
         if (mean > hi) shift = -per[k] * std::ceil((mean - hi) / per[k]);
         for (auto& p : loops[l]) p.uv[k] += shift;
       }
+      // all loops a period away from the face's parameter range (a rebuilt wrapped wire
+      // unwrapped from its seam's far side): back into it, where Reparam's tables, the shell's
+      // face grid and the node parameters of the contract live
+      auto b = S.face_uv_bounds(f);
+      double centre = k == 0 ? 0.5 * (b.u0 + b.u1) : 0.5 * (b.v0 + b.v1);
+      double mid = 0.5 * (lo + hi);
+      double n = std::round((centre - mid) / per[k]);
+      if (n != 0)
+        for (auto& l : loops)
+          for (auto& p : l) p.uv[k] += n * per[k];
     }
   }
   Reparam RP(S, f);
