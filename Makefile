@@ -26,7 +26,7 @@ bench: build
 	cmake --build $(BUILD) -j $(JOBS) --target benchmarks
 	bench/run.sh $(BUILD)
 
-# README's pictures (docs/img): demo and STEP wing meshes cut and rendered headless (VTK, xvfb)
+# README's pictures (docs/img): demo and STEP wing meshes cut and rendered headless (VTK; own Xvfb without a DISPLAY)
 pictures: build
 	scripts/pictures.sh $(BUILD)
 

@@ -281,7 +281,7 @@ TEST_CASE("wing_body default (CRM-like): closed fluid solid, tags, junction curv
   CHECK(ctx.stats_["wing_volume"].get<double>() + ctx.stats_["body_volume"].get<double>() - solid > 3e-3 * est);
 }
 
-TEST_CASE("wing_body: round tip, ogive nose, mid wing, no dihedral; sections exact and tip at the semispan") {
+TEST_CASE("wing_body: round tip, ogive nose, mid wing, no dihedral: sections exact and tip at the semispan") {
   TestContext ctx("wing_body", {{"tip", "round"}, {"nose", "ogive"}, {"profile", "0015"}, {"wing_z", 0.0},
                                 {"dihedral_deg", 0.0}, {"sweep_deg", 25.0}, {"incidence_deg", 0.0}});
   ctx.run();
@@ -305,7 +305,7 @@ TEST_CASE("wing_body: round tip, ogive nose, mid wing, no dihedral; sections exa
   CHECK(std::abs(solid - est) < 1e-4 * est);
 }
 
-TEST_CASE("wing_body: cambered 2412, sharp trailing edge, flat tip; the interpolated profile within 1e-6") {
+TEST_CASE("wing_body: cambered 2412, sharp trailing edge, flat tip: the interpolated profile within 1e-6") {
   TestContext ctx("wing_body", {{"profile", "2412"}, {"trailing_edge", "sharp"}, {"incidence_deg", 1.5}});
   ctx.run();
   Model M = model_of(ctx);
