@@ -7,6 +7,7 @@
 #include "stages/cad/cad.hpp"
 #include "stages/cad/vec3.hpp"
 #include "stages/model/quality.hpp"
+#include "stages/periodic_match/periodic.hpp"
 #include "stages/shell/shell.hpp"
 #include "stages/sweep/uv_mesher.hpp"
 
@@ -190,8 +191,8 @@ class Reparam {
 class Builder {
  public:
   Builder(const cad::Shape& s, const shell::ShellData& sh, const balance::Divisions& dv, const Options& o, Report& r,
-          const std::function<void(const std::string&)>& log)
-      : S(s), SH(sh), DV(dv), O(o), R(r), log_(log) {}
+          const std::function<void(const std::string&)>& log, const periodic::Match* pm)
+      : S(s), SH(sh), DV(dv), O(o), R(r), log_(log), PM(pm) {}
 
   model::Mesh run();
 
@@ -202,6 +203,7 @@ class Builder {
   Options O;
   Report& R;
   std::function<void(const std::string&)> log_;
+  const periodic::Match* PM = nullptr;           // periodic_hi faces are copies of their periodic_lo partners
   model::Mesh m;
   int nf = 0, ne = 0, nv = 0;
   std::vector<char> wall;
@@ -242,7 +244,14 @@ class Builder {
   void build_slides();
   void slide_ends();
   std::map<std::pair<int, int>, std::uint32_t> slide_end_image;  // (vertex, other face) -> image node on an edge
-  void mesh_face(int f);
+  void mesh_face(int f, int copy_from = -1);
+  // periodic: hi face `hi` as the image of the meshed lo face `lo` (hb: hi's boundary loop nodes)
+  std::vector<std::vector<std::uint32_t>> face_bnodes;  // per face: its boundary loop nodes (distinct, loop order)
+  std::map<std::uint32_t, std::uint32_t> per_master;   // hi node -> lo node
+  void snap(std::uint32_t h, std::uint32_t l);
+  void periodic_edges();
+  void copy_face(int lo, int hi, const std::vector<std::uint32_t>& hb);
+  void periodic_links();
   std::uint32_t shell_image(std::uint32_t n, int face);
   void volume();
   void untangle(std::vector<std::vector<std::uint32_t>>& prisms);
@@ -570,7 +579,7 @@ std::uint32_t Builder::shell_image(std::uint32_t n, int face) {
 }
 
 // ── one face: boundary loops in (u,v), the 2D mesher, nodes and triangles ────────────────
-void Builder::mesh_face(int f) {
+void Builder::mesh_face(int f, int copy_from) {
   struct LP {
     std::uint32_t node;
     std::array<double, 2> uv;
@@ -767,6 +776,17 @@ void Builder::mesh_face(int f) {
         for (auto& l : loops)
           for (auto& p : l) p.uv[k] += n * per[k];
     }
+  }
+  {
+    std::set<std::uint32_t> seen;
+    face_bnodes[f].clear();
+    for (auto& l : loops)
+      for (auto& p : l)
+        if (seen.insert(p.node).second) face_bnodes[f].push_back(p.node);
+  }
+  if (copy_from >= 0) {
+    copy_face(copy_from, f, face_bnodes[f]);
+    return;
   }
   Reparam RP(S, f);
   detail::UVMeshInput in;
@@ -985,6 +1005,151 @@ void Builder::untangle(std::vector<std::vector<std::uint32_t>>& P) {
   }
 }
 
+// ── periodic: the hi side as the exact image of the lo side ─────────────────────────────
+// A hi node gets the position transform.apply(x_lo) bit for bit (so matched nodes coincide to
+// rounding after the map) and its parameters by projection onto its own CAD entity: on edges
+// and vertices the hi curves are intersection curves computed independently of the lo ones
+// (periodic.hpp: off by up to 4e-8 of the radius), so the node sits within that distance of its
+// curve, inside the CAD tolerance.
+void Builder::snap(std::uint32_t h, std::uint32_t l) {
+  auto y = PM->transform.apply({m.x[l], m.y[l], m.z[l]});
+  auto it = per_master.find(h);
+  if (it != per_master.end()) {
+    if (it->second != l)
+      throw StageError("sweep: periodic node " + std::to_string(h) + " at " + fmt(X(h)) + " is the image of two lo nodes (" +
+                       std::to_string(it->second) + " and " + std::to_string(l) + "); re-run periodic_match on the same heal output");
+    return;
+  }
+  per_master[h] = l;
+  m.x[h] = y[0], m.y[h] = y[1], m.z[h] = y[2];
+  int dim = m.node_entity_dim[h], tag = m.node_entity_tag[h];
+  if (dim == 1) {
+    auto pr = S.project_to_edge(tag - 1, cad::Vec3{y[0], y[1], y[2]}, std::isnan(m.node_u[h]) ? std::optional<double>{} : m.node_u[h]);
+    m.node_u[h] = pr.t;
+  } else if (dim == 2) {
+    auto pr = std::isnan(m.node_u[h]) ? S.project_to_face(tag - 1, cad::Vec3{y[0], y[1], y[2]})
+                                      : S.project_to_face(tag - 1, cad::Vec3{y[0], y[1], y[2]}, cad::Vec2{m.node_u[h], m.node_v[h]});
+    m.node_u[h] = pr.u, m.node_v[h] = pr.v;
+    if (uv_on.count(h)) uv_on[h] = {pr.u, pr.v};
+  }
+}
+
+// Paired edges: the same number of nodes (balance made the divisions equal; junction or slide
+// cuts are placed alike on both sides), node k of hi = node k (or n-1-k, reversed) of lo.
+void Builder::periodic_edges() {
+  for (auto& pr : PM->vertices)
+    if (pr.lo != pr.hi && vnode.at(pr.lo) != kNone && vnode.at(pr.hi) != kNone) snap(vnode[pr.hi], vnode[pr.lo]);
+  for (auto& pr : PM->edges) {
+    if (pr.lo == pr.hi) continue;
+    const auto& a = en.at(pr.lo);
+    const auto& b = en.at(pr.hi);
+    if (a.size() != b.size())
+      throw StageError("sweep: periodic edges " + std::to_string(pr.lo) + " (lo, " + std::to_string(a.size()) + " nodes) and " +
+                       std::to_string(pr.hi) + " (hi, " + std::to_string(b.size()) +
+                       " nodes) differ; balance must give them equal divisions (needs: [heal, shell] and the periodic tags)");
+    for (std::size_t k = 0; k < a.size(); ++k) snap(b[pr.reversed ? b.size() - 1 - k : k], a[k]);
+  }
+}
+
+// The hi face's boundary nodes are matched to the lo face's by position after the map (each lo
+// node to the nearest hi node, which must be unambiguous: nearer than a third of the distance to
+// the second nearest, one to one), snapped, and the lo triangulation is copied with new interior
+// nodes; the triangles are reversed (the map carries lo's outward normal to hi's inward one) and
+// each is checked against hi's face normal.
+void Builder::copy_face(int lo, int hi, const std::vector<std::uint32_t>& hb) {
+  const auto& lb = face_bnodes.at(lo);
+  if (lb.size() != hb.size())
+    throw StageError("sweep: periodic faces " + std::to_string(lo) + " (lo) and " + std::to_string(hi) + " (hi) have " +
+                     std::to_string(lb.size()) + " and " + std::to_string(hb.size()) +
+                     " boundary nodes: their edges were divided differently; re-run balance and periodic_match on the same heal output");
+  std::map<std::uint32_t, std::uint32_t> P;  // lo -> hi
+  std::set<std::uint32_t> used;
+  for (auto l : lb) {
+    auto y = PM->transform.apply({m.x[l], m.y[l], m.z[l]});
+    V3 Y{y[0], y[1], y[2]};
+    double d1 = INFINITY, d2 = INFINITY;
+    std::uint32_t best = kNone;
+    for (auto h : hb) {
+      double d = norm(sub(X(h), Y));
+      if (d < d1) d2 = d1, d1 = d, best = h;
+      else if (d < d2) d2 = d;
+    }
+    if (best == kNone || !(d1 < d2 / 3) || !used.insert(best).second)
+      throw StageError("sweep: the boundary node " + std::to_string(l) + " of periodic_lo face " + std::to_string(lo) + " at " + fmt(X(l)) +
+                       " has no unambiguous image on periodic_hi face " + std::to_string(hi) + " (nearest " + std::to_string(d1) +
+                       ", next " + std::to_string(d2) + "); the two sides' boundaries differ (shell or junction asymmetric)");
+    P[l] = best;
+  }
+  for (auto l : lb) snap(P[l], l);
+  std::size_t added = 0;
+  for (auto& t : face_tris.at(lo)) {
+    std::array<std::uint32_t, 3> g{};
+    for (int i = 0; i < 3; ++i) {
+      std::uint32_t l = t[i];
+      auto it = P.find(l);
+      if (it == P.end()) {
+        auto y = PM->transform.apply({m.x[l], m.y[l], m.z[l]});
+        auto pr = S.project_to_face(hi, cad::Vec3{y[0], y[1], y[2]});
+        std::uint32_t h = mk(V3{y[0], y[1], y[2]}, 2, hi + 1, pr.u, pr.v);
+        per_master[h] = l;
+        it = P.emplace(l, h).first;
+        ++added;
+      }
+      g[i] = it->second;
+    }
+    std::swap(g[1], g[2]);
+    V3 a = X(g[0]), b = X(g[1]), c = X(g[2]);
+    V3 nrm = cross(sub(b, a), sub(c, a));
+    V3 cen = mul(add(add(a, b), c), 1.0 / 3);
+    auto pr = S.project_to_face(hi, cv(cen));
+    if (dot(nrm, v3(S.face_normal(hi, pr.u, pr.v))) < 0)
+      throw StageError("sweep: the image of a triangle of periodic_lo face " + std::to_string(lo) + " on periodic_hi face " +
+                       std::to_string(hi) + " at " + fmt(cen) + " points into the fluid: the transform does not glue the sides");
+    face_tris[hi].push_back(g);
+  }
+  ++R.faces_meshed;
+  R.periodic_faces_copied++;
+  log("sweep: periodic_hi face " + std::to_string(hi) + " = image of periodic_lo face " + std::to_string(lo) + ": " +
+      std::to_string(face_tris[hi].size()) + " triangles, " + std::to_string(lb.size()) + " boundary and " + std::to_string(added) +
+      " interior nodes");
+}
+
+// MSH $Periodic: one link per hi entity (face, edge, vertex) holding the pairs (hi node, lo node)
+// of the nodes classified on it; the lo node must lie on the hi entity's partner.
+void Builder::periodic_links() {
+  std::map<std::pair<int, int>, int> master;  // (dim, hi tag) -> lo tag (mesh tags: CAD id + 1)
+  for (auto& pr : PM->faces) master[{2, pr.hi + 1}] = pr.lo + 1;
+  for (auto& pr : PM->edges) master[{1, pr.hi + 1}] = pr.lo + 1;
+  for (auto& pr : PM->vertices) master[{0, pr.hi + 1}] = pr.lo + 1;
+  std::map<std::pair<int, int>, model::PeriodicLink> links;
+  double worst = 0;
+  for (auto [h, l] : per_master) {
+    int dim = m.node_entity_dim[h], tag = m.node_entity_tag[h];
+    auto it = master.find({dim, tag});
+    if (it == master.end() || it->second == tag) continue;  // not on a hi entity (e.g. a shell image on a face edge)
+    if (m.node_entity_dim[l] != dim || m.node_entity_tag[l] != it->second)
+      throw StageError("sweep: periodic node " + std::to_string(h) + " at " + fmt(X(h)) + " on entity (" + std::to_string(dim) + "," +
+                       std::to_string(tag) + ") has its lo node on (" + std::to_string(m.node_entity_dim[l]) + "," +
+                       std::to_string(m.node_entity_tag[l]) + "), not on the partner (" + std::to_string(dim) + "," +
+                       std::to_string(it->second) + ")");
+    auto& L = links[{dim, tag}];
+    L.dim = dim, L.tag = tag, L.master_tag = it->second;
+    L.affine.assign(PM->transform.affine.begin(), PM->transform.affine.end());
+    L.nodes.push_back({h, l});
+    auto y = PM->transform.apply({m.x[l], m.y[l], m.z[l]});
+    worst = std::max(worst, std::hypot(y[0] - m.x[h], y[1] - m.y[h], y[2] - m.z[h]));
+  }
+  // faces, then edges, then vertices (Gmsh's order), each by tag; pairs by hi node
+  for (int dim = 2; dim >= 0; --dim)
+    for (auto& [k, L] : links)
+      if (k.first == dim) {
+        R.periodic_pairs += L.nodes.size();
+        m.periodic.push_back(std::move(L));
+      }
+  R.periodic_max_mismatch = worst;
+  R.periodic_model_size = PM->model_size;
+}
+
 void Builder::volume() {
   auto valid_or_flip = [&](model::Shape shape, std::vector<std::uint32_t>& nodes, const std::vector<int>& flip,
                            const std::string& what) {
@@ -1064,6 +1229,7 @@ model::Mesh Builder::run() {
   slide_wall.assign(ne, -1);
   face_tris.assign(nf, {});
   face_quads.assign(nf, {});
+  face_bnodes.assign(nf, {});
 
   nlohmann::json H = nlohmann::json::parse(SH.header);
   for (auto& b : H.at("blocks")) {
@@ -1104,7 +1270,20 @@ model::Mesh Builder::run() {
   build_junction_curves();
   build_slides();
   auto ts = std::chrono::steady_clock::now();
-  for (int f = 0; f < nf; ++f) mesh_face(f);
+  if (!PM) {
+    for (int f = 0; f < nf; ++f) mesh_face(f);
+  } else {
+    // the lo sides and every other face first, then each periodic_hi face as the image of its lo
+    // partner (periodic.hpp: nodes at transform.apply(x), parameters by projection)
+    std::vector<int> lo_of(nf, -1);
+    for (auto& pr : PM->faces)
+      if (pr.lo != pr.hi) lo_of.at(pr.hi) = pr.lo;
+    periodic_edges();
+    for (int f = 0; f < nf; ++f)
+      if (lo_of[f] < 0) mesh_face(f);
+    for (int f = 0; f < nf; ++f)
+      if (lo_of[f] >= 0) mesh_face(f, lo_of[f]);
+  }
   R.surface_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - ts).count();
   volume();
   // boundary elements, lines, entities, physical groups
@@ -1141,6 +1320,7 @@ model::Mesh Builder::run() {
     if (a.entity_tag != b.entity_tag) return a.entity_tag < b.entity_tag;
     return static_cast<int>(a.shape) < static_cast<int>(b.shape);
   });
+  if (PM) periodic_links();
   R.nodes = m.num_nodes();
   R.total_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return std::move(m);
@@ -1153,12 +1333,16 @@ nlohmann::json Report::to_json() const {
           {"boundary_triangles", boundary_triangles}, {"prisms", prisms},     {"hexes", hexes},
           {"junction_blocks", junction_blocks},     {"edges_cut", edges_cut}, {"thinned", thinned}, {"nodes", nodes},
           {"faces_meshed", faces_meshed},           {"surface_seconds", surface_seconds},
+          {"periodic_faces_copied", periodic_faces_copied}, {"periodic_pairs", periodic_pairs},
+          {"periodic_max_mismatch", periodic_max_mismatch},
+          {"periodic_max_mismatch_rel", periodic_model_size > 0 ? periodic_max_mismatch / periodic_model_size : 0.0},
           {"total_seconds", total_seconds}};
 }
 
 model::Mesh sweep_mesh(const cad::Shape& shape, const shell::ShellData& shell, const balance::Divisions& div,
-                       const Options& opt, Report& report, const std::function<void(const std::string&)>& log) {
-  Builder b(shape, shell, div, opt, report, log);
+                       const Options& opt, Report& report, const std::function<void(const std::string&)>& log,
+                       const periodic::Match* match) {
+  Builder b(shape, shell, div, opt, report, log, match);
   return b.run();
 }
 
