@@ -253,6 +253,7 @@ class Builder {
   void copy_face(int lo, int hi, const std::vector<std::uint32_t>& hb);
   void periodic_links();
   std::uint32_t shell_image(std::uint32_t n, int face);
+  std::pair<double, shell::Vec3> face_field(int face, double u, double v);
   void volume();
   void untangle(std::vector<std::vector<std::uint32_t>>& prisms);
 };
@@ -455,23 +456,99 @@ void Builder::build_edges() {
   }
 }
 
+// Strip boundaries next to a seam. Where a junction ends at a vertex on a seam of A or B (a
+// closed junction edge around a wrapped face: Rotor 67's blade root and tip, the blade's seam
+// along its leading edge), junction_ends put that end's PA / PB on the seam; the stations next to
+// it, offset across the face by the shell's in-face direction, may land on the other side of the
+// seam when the seam leans against that direction (at a leading edge the seam moves across the
+// whole nose within one strip width), and the strip boundary then crosses the seam and folds. So
+// within two strip widths (L) of such an end the point is blended in (u,v) towards the end's
+// offset carried along the edge: uv = s (uv_edge(t) + (uv_end - uv_vertex)) + (1 - s) uv_station
+// (the station's uv taken in the period nearest), s = 1 - smoothstep(|P0 - V| / L). Along a
+// closed junction edge around a wrapped face (Rotor 67's blade root and tip: the blade's
+// leading and trailing edges are far smaller than a strip width, and the station points,
+// offset in 3D and projected, land on either side of the nose and fold the strip boundary
+// there), L is infinite: the strip boundary is the edge's p-curve offset by the end's constant
+// (u,v) offset, monotone along the edge like the edge itself.
 void Builder::build_junction_curves() {
+  struct SeamEnd {
+    V3 p0{};
+    std::array<double, 2> delta{};
+    double L = 0;
+  };
+  auto seam_end = [&](const Junction& j, int face, std::uint32_t endnode, int end, std::uint32_t p0) -> std::optional<SeamEnd> {
+    if (m.node_entity_dim[endnode] != 1) return std::nullopt;
+    int e = m.node_entity_tag[endnode] - 1;
+    if (!S.edge_is_seam(e, face)) return std::nullopt;
+    auto rr = S.edge_range(e);
+    auto vs = S.edge_vertices(e);
+    int V = j.vertices[end];
+    if (vs[0] != V && vs[1] != V) return std::nullopt;
+    double tv = vs[0] == V ? rr.lo : rr.hi;
+    auto a = S.edge_uv(e, face, tv, false), b = S.edge_uv(e, face, m.node_u[endnode], false);
+    SeamEnd r;
+    r.p0 = X(p0);
+    r.delta = {b.u - a.u, b.v - a.v};
+    // a closed junction edge around a wrapped face (both ends at V): the whole strip boundary
+    // is the edge's p-curve offset by the end's (u,v) offset (for a lofted blade: the same
+    // section parameter one strip width up the span); see above
+    r.L = j.vertices[0] == j.vertices[1] ? INFINITY : 2 * norm(sub(X(endnode), r.p0));
+    return r;
+  };
+  auto smoothstep = [](double x) { x = std::clamp(x, 0.0, 1.0); return x * x * (3 - 2 * x); };
+  // the (u,v) of a station point near a seam end (see above); `uv` is the projection's
+  auto blend = [&](const Junction& j, int face, const std::vector<std::optional<SeamEnd>>& ends, V3 P0, double t,
+                   std::array<double, 2> uv) -> std::optional<std::array<double, 2>> {
+    const SeamEnd* best = nullptr;
+    double dbest = INFINITY;
+    for (auto& se : ends)
+      if (se) {
+        double d = norm(sub(P0, se->p0));
+        if (d < se->L && d < dbest) dbest = d, best = &*se;
+      }
+    if (!best) return std::nullopt;
+    double s = 1 - smoothstep(dbest / best->L);
+    auto eu = S.edge_uv(j.edge, face, t, false);
+    std::array<double, 2> target{eu.u + best->delta[0], eu.v + best->delta[1]};
+    auto per = S.face_periods(face);
+    for (int c = 0; c < 2; ++c)
+      if (per[c] > 0) uv[c] += per[c] * std::round((target[c] - uv[c]) / per[c]);
+    return std::array<double, 2>{s * target[0] + (1 - s) * uv[0], s * target[1] + (1 - s) * uv[1]};
+  };
   for (auto& j : J) {
     const auto& w = en[j.edge];
     const auto& t = et[j.edge];
     std::size_t n = w.size();
+    std::vector<std::optional<SeamEnd>> endsA, endsB;
+    for (int end = 0; end < 2; ++end) {
+      std::size_t k = end == 0 ? 0 : n - 1;
+      endsA.push_back(seam_end(j, j.A, j.pa[k], end, w[k]));
+      endsB.push_back(seam_end(j, j.B, j.pb[k], end, w[k]));
+    }
     for (std::size_t k = 0; k < n; ++k) {
       j.p0[k] = w[k];
       if (k == 0 || k + 1 == n) continue;  // shared end cross-sections, set by junction_ends
       auto s = j.at(t[k]);
       auto pa = S.project_to_face(j.A, cv(s.PA), cad::Vec2{s.uvA[0], s.uvA[1]});
       auto pb = S.project_to_face(j.B, cv(s.PB), cad::Vec2{s.uvB[0], s.uvB[1]});
+      if (auto uv = blend(j, j.A, endsA, X(w[k]), t[k], {pa.u, pa.v})) {
+        pa.u = (*uv)[0], pa.v = (*uv)[1];
+        pa.point = S.face_point(j.A, pa.u, pa.v);
+      }
+      if (auto uv = blend(j, j.B, endsB, X(w[k]), t[k], {pb.u, pb.v})) {
+        pb.u = (*uv)[0], pb.v = (*uv)[1];
+        pb.point = S.face_point(j.B, pb.u, pb.v);
+      }
       j.pa[k] = mk(v3(pa.point), 2, j.A + 1, pa.u, pa.v);
       uv_on[j.pa[k]] = {pa.u, pa.v};
       j.pb[k] = mk(v3(pb.point), 2, j.B + 1, pb.u, pb.v);
       uv_on[j.pb[k]] = {pb.u, pb.v};
+      if (std::getenv("MESHFLOW_SWEEP_DEBUG") && (k < 4 || k + 4 > n))
+        log("junction " + std::to_string(j.edge) + " station " + std::to_string(k) + "/" + std::to_string(n) + " t " + std::to_string(t[k]) +
+            ": P0 " + fmt(X(w[k])) + " PA " + fmt(v3(pa.point)) + " (uv " + std::to_string(pa.u) + "," + std::to_string(pa.v) + ") PB " +
+            fmt(v3(pb.point)) + " (uv " + std::to_string(pb.u) + "," + std::to_string(pb.v) + ")");
       // the outer corner: PA's shell image along A's field, as the shell defines PC
-      auto [th, d] = SH.face_field(j.A, pa.u, pa.v);
+      auto [th, d] = face_field(j.A, pa.u, pa.v);
       j.pc[k] = mk(add(v3(pa.point), mul(V3{d[0], d[1], d[2]}, th)), 3, 1);
     }
     for (std::size_t k = 0; k < n; ++k) {
@@ -556,6 +633,47 @@ void Builder::build_slides() {
   }
 }
 
+// The shell's face field at (u,v), its direction corrected for the grid's resolution: the grid
+// (shell.hpp) holds d at its nodes and face_field interpolates d bilinearly, which is the fluid
+// normal only where the normal turns slowly across a grid cell. Where the face turns within a
+// cell (Rotor 67's blade: its leading and trailing edges, radius ~1e-3 ft, lie inside one cell
+// of the 56-column grid around the wrapped section) the interpolated direction is a mean of the
+// normals on both sides of the nose, nearly tangent to the wall, and the prisms there fold. So
+// the deviation of d from the exact fluid normal is interpolated instead:
+// d(x) = normalise(n(x) + sum_c w_c (d_c - n_c)) over the cell's corners c, n = the exact fluid
+// normal (-face_normal). Where the grid's d is the normal (away from edges) this is the exact
+// normal; near edges the blend towards the edge values is kept. The thickness is the grid's.
+std::pair<double, shell::Vec3> Builder::face_field(int face, double u, double v) {
+  auto td = SH.face_field(face, u, v);
+  const shell::FaceGrid* g = nullptr;
+  for (auto& fg : SH.faces)
+    if (fg.face == face) g = &fg;
+  if (!g || g->nu < 2 || g->nv < 2 || !(g->u1 > g->u0) || !(g->v1 > g->v0)) return td;
+  V3 nx = mul(v3(S.face_normal(face, u, v)), -1.0);
+  if (norm(nx) < 0.5) return td;  // a pole: the grid's direction
+  double x = std::clamp((u - g->u0) / (g->u1 - g->u0) * (g->nu - 1), 0.0, double(g->nu - 1));
+  double y = std::clamp((v - g->v0) / (g->v1 - g->v0) * (g->nv - 1), 0.0, double(g->nv - 1));
+  int i = std::min(int(x), g->nu - 2), j = std::min(int(y), g->nv - 2);
+  double a = x - i, b = y - j;
+  V3 dev{0, 0, 0};
+  for (int dj = 0; dj < 2; ++dj)
+    for (int di = 0; di < 2; ++di) {
+      int ii = i + di, jj = j + dj;
+      double w = (di ? a : 1 - a) * (dj ? b : 1 - b);
+      if (w == 0) continue;
+      double uc = g->u0 + (g->u1 - g->u0) * ii / (g->nu - 1), vc = g->v0 + (g->v1 - g->v0) * jj / (g->nv - 1);
+      V3 nc = mul(v3(S.face_normal(face, uc, vc)), -1.0);
+      if (norm(nc) < 0.5) return td;  // a pole at a corner: the grid's direction
+      const double* p = &g->data[(std::size_t(jj) * g->nu + ii) * 4];
+      dev = add(dev, mul(sub(V3{p[1], p[2], p[3]}, nc), w));
+    }
+  V3 d = add(nx, dev);
+  double l = norm(d);
+  if (!(l > 0.5)) return td;  // the deviation undoes the normal: keep the grid's direction
+  d = mul(d, 1.0 / l);
+  return {td.first, shell::Vec3{d[0], d[1], d[2]}};
+}
+
 std::uint32_t Builder::shell_image(std::uint32_t n, int face) {
   auto it = image.find(n);
   if (it != image.end()) return it->second;
@@ -570,7 +688,7 @@ std::uint32_t Builder::shell_image(std::uint32_t n, int face) {
   } else if (dim == 1) {
     td = SH.edge_field(tag - 1, m.node_u[n], face);
   } else {
-    td = SH.face_field(face, m.node_u[n], m.node_v[n]);
+    td = face_field(face, m.node_u[n], m.node_v[n]);
   }
   V3 x = add(X(n), mul(V3{td.second[0], td.second[1], td.second[2]}, td.first));
   std::uint32_t img = mk(x, 3, 1);
@@ -1064,12 +1182,33 @@ void Builder::copy_face(int lo, int hi, const std::vector<std::uint32_t>& hb) {
                      " boundary nodes: their edges were divided differently; re-run balance and periodic_match on the same heal output");
   std::map<std::uint32_t, std::uint32_t> P;  // lo -> hi
   std::set<std::uint32_t> used;
+  // Known partners first: nodes of paired CAD edges and vertices (periodic_edges), and the shell
+  // images of paired wall nodes (where a wall slides on a periodic side, e.g. the hub: its edge
+  // on periodic_lo and the one on periodic_hi are paired, their nodes' images lie on the sides;
+  // the thickness may differ a little between the sides, so these are matched by their wall
+  // nodes and then snapped, not found by distance).
+  {
+    std::set<std::uint32_t> hset(hb.begin(), hb.end());
+    std::map<std::uint32_t, std::uint32_t> lo_to_hi, wall_of;
+    for (auto [h, l] : per_master) lo_to_hi[l] = h;
+    for (auto [w, i] : image) wall_of.emplace(i, w);
+    for (auto l : lb) {
+      std::uint32_t h = kNone;
+      if (auto it = lo_to_hi.find(l); it != lo_to_hi.end() && hset.count(it->second)) h = it->second;
+      else if (auto iw = wall_of.find(l); iw != wall_of.end())
+        if (auto ih = lo_to_hi.find(iw->second); ih != lo_to_hi.end())
+          if (auto ii = image.find(ih->second); ii != image.end() && hset.count(ii->second)) h = ii->second;
+      if (h != kNone && used.insert(h).second) P[l] = h;
+    }
+  }
   for (auto l : lb) {
+    if (P.count(l)) continue;
     auto y = PM->transform.apply({m.x[l], m.y[l], m.z[l]});
     V3 Y{y[0], y[1], y[2]};
     double d1 = INFINITY, d2 = INFINITY;
     std::uint32_t best = kNone;
     for (auto h : hb) {
+      if (used.count(h)) continue;
       double d = norm(sub(X(h), Y));
       if (d < d1) d2 = d1, d1 = d, best = h;
       else if (d < d2) d2 = d;
@@ -1184,6 +1323,25 @@ void Builder::volume() {
       P.push_back({t[0], t[2], t[1], shell_image(t[0], f), shell_image(t[2], f), shell_image(t[1], f)});
       pface.push_back(f);
     }
+  }
+  if (std::getenv("MESHFLOW_SWEEP_DEBUG")) {
+    int shown = 0, bad = 0;
+    for (std::size_t i = 0; i < P.size(); ++i) {
+      double X3[18];
+      for (int q = 0; q < 6; ++q) X3[3 * q] = m.x[P[i][q]], X3[3 * q + 1] = m.y[P[i][q]], X3[3 * q + 2] = m.z[P[i][q]];
+      auto eq = model::element_quality(model::Shape::Prism, 1, X3);
+      if (eq.valid) continue;
+      ++bad;
+      if (shown++ < 6) {
+        std::string l = "invalid before untangle: prism " + std::to_string(i) + " face " + std::to_string(pface[i]) + ":";
+        for (int q = 0; q < 3; ++q)
+          l += " " + std::to_string(P[i][q]) + fmt(X(P[i][q])) + " uv(" + std::to_string(m.node_u[P[i][q]]) + "," +
+               std::to_string(m.node_v[P[i][q]]) + ") dim " + std::to_string(m.node_entity_dim[P[i][q]]) + " -> d " +
+               fmt(sub(X(P[i][q + 3]), X(P[i][q])));
+        log(l);
+      }
+    }
+    log("invalid prisms before untangle: " + std::to_string(bad) + " of " + std::to_string(P.size()));
   }
   untangle(P);
   auto& prisms = m.block(model::Shape::Prism, 1, 3, 1);
