@@ -61,8 +61,10 @@ struct Junction {
   std::vector<Station> st;
   // per division node k of w<edge>: the four nodes
   std::vector<std::uint32_t> p0, pa, pb, pc;
-  // interpolated station at edge parameter t
-  Station at(double t) const {
+  // interpolated station at edge parameter t; perA/perB: the periods of A's and B's surfaces
+  // (0: none), so that (u,v) is interpolated across a seam (a revolved hub: 2 pi -> 0) and not
+  // through the middle of the period
+  Station at(double t, std::array<double, 2> perA = {0, 0}, std::array<double, 2> perB = {0, 0}) const {
     if (st.size() == 1 || t <= st.front().t) return st.front();
     if (t >= st.back().t) return st.back();
     auto it = std::upper_bound(st.begin(), st.end(), t, [](double x, const Station& s) { return x < s.t; });
@@ -72,8 +74,13 @@ struct Junction {
     Station r;
     r.t = t;
     r.P0 = lerp(a.P0, b.P0, s), r.PA = lerp(a.PA, b.PA, s), r.PB = lerp(a.PB, b.PB, s), r.PC = lerp(a.PC, b.PC, s);
-    r.uvA = {a.uvA[0] + s * (b.uvA[0] - a.uvA[0]), a.uvA[1] + s * (b.uvA[1] - a.uvA[1])};
-    r.uvB = {a.uvB[0] + s * (b.uvB[0] - a.uvB[0]), a.uvB[1] + s * (b.uvB[1] - a.uvB[1])};
+    auto lerp_uv = [&](std::array<double, 2> p, std::array<double, 2> q, std::array<double, 2> per) {
+      for (int c = 0; c < 2; ++c)
+        if (per[c] > 0) q[c] -= per[c] * std::round((q[c] - p[c]) / per[c]);
+      return std::array<double, 2>{p[0] + s * (q[0] - p[0]), p[1] + s * (q[1] - p[1])};
+    };
+    r.uvA = lerp_uv(a.uvA, b.uvA, perA);
+    r.uvB = lerp_uv(a.uvB, b.uvB, perB);
     return r;
   }
 };
@@ -238,6 +245,11 @@ class Builder {
   V3 X(std::uint32_t i) const { return {m.x[i], m.y[i], m.z[i]}; }
   double edge_h(int e, double t, double hmax) const;
   std::vector<double> own_division(int e, double hmax) const;
+  bool seam_of_wall(int e) const {
+    for (int f : S.edge_faces(e))
+      if (wall[f] && S.edge_is_seam(e, f)) return true;
+    return false;
+  }
   void junction_ends();
   void build_edges();
   void build_junction_curves();
@@ -263,6 +275,16 @@ double Builder::edge_h(int e, double t, double hmax) const {
   V3 d1 = v3(d.d1), d2 = v3(d.d2);
   double s = norm(d1);
   double k = s > 0 ? norm(cross(d1, d2)) / (s * s * s) : 0;
+  // A seam of a wall face (the Rotor 67 blade's seam runs up its leading edge): the curve is
+  // nearly straight but the surface turns sharply across it, and the triangles beside the seam
+  // would be slivers along it cutting through the nose. Its size is the face's: the surface's
+  // largest principal curvature at the seam point counts too.
+  for (int f : S.edge_faces(e))
+    if (wall[f] && S.edge_is_seam(e, f)) {
+      auto uv = S.edge_uv(e, f, t, false);
+      auto c = S.face_curvature(f, uv.u, uv.v);
+      if (c.defined) k = std::max({k, std::abs(c.k1), std::abs(c.k2)});
+    }
   double theta = O.turn_angle_deg * M_PI / 180;
   double h = k > 0 ? theta / k : hmax;
   return std::clamp(h, O.min_size, hmax);
@@ -422,7 +444,7 @@ void Builder::build_edges() {
     else if (auto* d2 = DV.find("e" + std::to_string(e)))
       t = d2->nodes;
     else
-      t = own_division(e, O.farfield_size);
+      t = own_division(e, seam_of_wall(e) ? O.max_size : O.farfield_size);
     // cuts: [t0, c0] + the divisions mapped affinely onto [c0, c1] + [c1, tn]
     const Cut& c0 = cuts[e][0];
     const Cut& c1 = cuts[e][1];
@@ -513,6 +535,18 @@ void Builder::build_junction_curves() {
     auto per = S.face_periods(face);
     for (int c = 0; c < 2; ++c)
       if (per[c] > 0) uv[c] += per[c] * std::round((target[c] - uv[c]) / per[c]);
+    if (std::isinf(best->L)) {
+      // all along a closed edge: the station's own offset across the p-curve (its width varies
+      // with the thickness), without its component along the p-curve (which folds at a nose)
+      double dt = 1e-4 * (S.edge_range(j.edge).hi - S.edge_range(j.edge).lo);
+      auto e1 = S.edge_uv(j.edge, face, t + dt, false), e0 = S.edge_uv(j.edge, face, t - dt, false);
+      double tu = e1.u - e0.u, tv = e1.v - e0.v, tl = std::hypot(tu, tv);
+      if (tl > 0) {
+        double nu = -tv / tl, nv = tu / tl;
+        double off = (uv[0] - eu.u) * nu + (uv[1] - eu.v) * nv;
+        return std::array<double, 2>{eu.u + off * nu, eu.v + off * nv};
+      }
+    }
     return std::array<double, 2>{s * target[0] + (1 - s) * uv[0], s * target[1] + (1 - s) * uv[1]};
   };
   for (auto& j : J) {
@@ -528,7 +562,7 @@ void Builder::build_junction_curves() {
     for (std::size_t k = 0; k < n; ++k) {
       j.p0[k] = w[k];
       if (k == 0 || k + 1 == n) continue;  // shared end cross-sections, set by junction_ends
-      auto s = j.at(t[k]);
+      auto s = j.at(t[k], S.face_periods(j.A), S.face_periods(j.B));
       auto pa = S.project_to_face(j.A, cv(s.PA), cad::Vec2{s.uvA[0], s.uvA[1]});
       auto pb = S.project_to_face(j.B, cv(s.PB), cad::Vec2{s.uvB[0], s.uvB[1]});
       if (auto uv = blend(j, j.A, endsA, X(w[k]), t[k], {pa.u, pa.v})) {
@@ -644,10 +678,20 @@ void Builder::build_slides() {
 // normal (-face_normal). Where the grid's d is the normal (away from edges) this is the exact
 // normal; near edges the blend towards the edge values is kept. The thickness is the grid's.
 std::pair<double, shell::Vec3> Builder::face_field(int face, double u, double v) {
-  auto td = SH.face_field(face, u, v);
   const shell::FaceGrid* g = nullptr;
   for (auto& fg : SH.faces)
     if (fg.face == face) g = &fg;
+  if (g) {  // (u,v) of a periodic surface taken in the grid's period (a hub node at u = 2 pi - e, grid on [-0.14, 0.37])
+    auto per = S.face_periods(face);
+    double lo[2] = {g->u0, g->v0}, hi[2] = {g->u1, g->v1};
+    double* x[2] = {&u, &v};
+    for (int c = 0; c < 2; ++c)
+      if (per[c] > 0 && (*x[c] < lo[c] || *x[c] > hi[c])) {
+        double mid = 0.5 * (lo[c] + hi[c]);
+        *x[c] -= per[c] * std::round((*x[c] - mid) / per[c]);
+      }
+  }
+  auto td = SH.face_field(face, u, v);
   if (!g || g->nu < 2 || g->nv < 2 || !(g->u1 > g->u0) || !(g->v1 > g->v0)) return td;
   V3 nx = mul(v3(S.face_normal(face, u, v)), -1.0);
   if (norm(nx) < 0.5) return td;  // a pole: the grid's direction
