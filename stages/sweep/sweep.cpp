@@ -1102,8 +1102,9 @@ void Builder::mesh_face(int f, int copy_from) {
 // three walls meet and the shell's direction field turns faster than the triangles are
 // wide): the direction of each wall node of an inverted prism and of its neighbours becomes
 // the normalised mean of its own and its neighbours' directions, the layer height their mean
-// (Jacobi passes, until every prism is valid or 40 passes). Images fixed by the block structure
-// (junction corners, images sliding on other faces) do not move.
+// (Jacobi passes, until every prism is valid or 60 passes, the last 40 also thinning the layer
+// at the nodes of inverted prisms). Images sliding on other faces never move; junction corners
+// only in a second round when the first fails (see below).
 void Builder::untangle(std::vector<std::vector<std::uint32_t>>& P) {
   auto valid = [&](const std::vector<std::uint32_t>& p) {
     double X3[18];
@@ -1119,52 +1120,66 @@ void Builder::untangle(std::vector<std::vector<std::uint32_t>>& P) {
         if (j != i) nb[p[i]].insert(p[j]);
     }
   std::set<std::uint32_t> fixed_img;
-  for (auto& j : J)
-    for (auto n : j.pc) fixed_img.insert(n);
   auto movable = [&](std::uint32_t w) {
     std::uint32_t i = img.at(w);
     return !fixed_img.count(i) && m.node_entity_dim[i] == 3;
   };
-  for (int pass = 0; pass < 60; ++pass) {
-    std::set<std::uint32_t> bad;
-    for (auto& p : P)
-      if (!valid(p)) {
-        std::vector<std::uint32_t> q{p[0], p[2], p[1], p[3], p[5], p[4]};
-        if (valid(q)) continue;  // the other orientation is valid: flipped later
-        for (int i = 0; i < 3; ++i) bad.insert(p[i]);
+  // one round of at most 60 passes; true when every prism is valid
+  auto round = [&](const std::string& what) {
+    for (int pass = 0; pass < 60; ++pass) {
+      std::set<std::uint32_t> bad;
+      for (auto& p : P)
+        if (!valid(p)) {
+          std::vector<std::uint32_t> q{p[0], p[2], p[1], p[3], p[5], p[4]};
+          if (valid(q)) continue;  // the other orientation is valid: flipped later
+          for (int i = 0; i < 3; ++i) bad.insert(p[i]);
+        }
+      if (bad.empty()) {
+        if (pass > 0)
+          log("sweep: layer directions smoothed in " + std::to_string(pass) + " passes to untangle prisms" + what +
+              (R.thinned ? ", layer thinned at " + std::to_string(R.thinned) + " node moves" : std::string()));
+        return true;
       }
-    if (bad.empty()) {
-      if (pass > 0)
-        log("sweep: layer directions smoothed in " + std::to_string(pass) + " passes to untangle prisms" +
-            (R.thinned ? ", layer thinned at " + std::to_string(R.thinned) + " node moves" : std::string()));
-      return;
+      std::set<std::uint32_t> move;
+      for (auto w : bad) {
+        if (movable(w)) move.insert(w);
+        for (auto n : nb[w])
+          if (movable(n)) move.insert(n);
+      }
+      std::vector<std::pair<std::uint32_t, V3>> upd;
+      for (auto w : move) {
+        V3 d{0, 0, 0};
+        double t = 0;
+        int k = 0;
+        auto acc = [&](std::uint32_t n) {
+          V3 l = sub(X(img.at(n)), X(n));
+          double len = norm(l);
+          if (len > 0) d = add(d, mul(l, 1 / len)), t += len, ++k;
+        };
+        acc(w);
+        for (auto n : nb[w]) acc(n);
+        if (k == 0 || norm(d) == 0) continue;
+        double len = t / k;
+        // after 20 passes of direction smoothing, the layer is also thinned where it stays tangled
+        if (pass >= 20 && bad.count(w)) len = std::min(len, 0.8 * norm(sub(X(img.at(w)), X(w)))), ++R.thinned;
+        upd.push_back({img.at(w), add(X(w), mul(d, len / norm(d)))});
+      }
+      for (auto& [i, x] : upd) m.x[i] = x[0], m.y[i] = x[1], m.z[i] = x[2];
     }
-    std::set<std::uint32_t> move;
-    for (auto w : bad) {
-      if (movable(w)) move.insert(w);
-      for (auto n : nb[w])
-        if (movable(n)) move.insert(n);
-    }
-    std::vector<std::pair<std::uint32_t, V3>> upd;
-    for (auto w : move) {
-      V3 d{0, 0, 0};
-      double t = 0;
-      int k = 0;
-      auto acc = [&](std::uint32_t n) {
-        V3 l = sub(X(img.at(n)), X(n));
-        double len = norm(l);
-        if (len > 0) d = add(d, mul(l, 1 / len)), t += len, ++k;
-      };
-      acc(w);
-      for (auto n : nb[w]) acc(n);
-      if (k == 0 || norm(d) == 0) continue;
-      double len = t / k;
-      // after 20 passes of direction smoothing, the layer is also thinned where it stays tangled
-      if (pass >= 20 && bad.count(w)) len = std::min(len, 0.8 * norm(sub(X(img.at(w)), X(w)))), ++R.thinned;
-      upd.push_back({img.at(w), add(X(w), mul(d, len / norm(d)))});
-    }
-    for (auto& [i, x] : upd) m.x[i] = x[0], m.y[i] = x[1], m.z[i] = x[2];
-  }
+    return false;
+  };
+  // First with the junction corners fixed. Where that fails (Rotor 67: the hub and casing
+  // junctions at the blade's sharp trailing edge, whose corners PC fan across the nose while
+  // the blade's own directions flip), again from the start with the corners PC free to move too
+  // (they are the images of the strip boundaries; the hexes are checked afterwards).
+  for (auto& j : J)
+    for (auto n : j.pc) fixed_img.insert(n);
+  std::vector<double> x0 = m.x, y0 = m.y, z0 = m.z;
+  if (round("")) return;
+  m.x = x0, m.y = y0, m.z = z0;
+  R.thinned = 0;
+  fixed_img.clear();
+  round(" (junction corners moved too)");
 }
 
 // ── periodic: the hi side as the exact image of the lo side ─────────────────────────────
@@ -1388,6 +1403,29 @@ void Builder::volume() {
     log("invalid prisms before untangle: " + std::to_string(bad) + " of " + std::to_string(P.size()));
   }
   untangle(P);
+  if (std::getenv("MESHFLOW_SWEEP_DEBUG")) {
+    int bad = 0;
+    for (std::size_t i = 0; i < P.size(); ++i) {
+      double X3[18], Y3[18];
+      std::vector<std::uint32_t> q{P[i][0], P[i][2], P[i][1], P[i][3], P[i][5], P[i][4]};
+      for (int c = 0; c < 6; ++c) {
+        X3[3 * c] = m.x[P[i][c]], X3[3 * c + 1] = m.y[P[i][c]], X3[3 * c + 2] = m.z[P[i][c]];
+        Y3[3 * c] = m.x[q[c]], Y3[3 * c + 1] = m.y[q[c]], Y3[3 * c + 2] = m.z[q[c]];
+      }
+      if (model::element_quality(model::Shape::Prism, 1, X3).valid || model::element_quality(model::Shape::Prism, 1, Y3).valid) continue;
+      ++bad;
+      std::string l = "invalid after untangle: face " + std::to_string(pface[i]) + ":";
+      for (int c = 0; c < 3; ++c) {
+        auto w = P[i][c];
+        bool fixed = false;
+        for (auto& j : J) fixed = fixed || std::find(j.pc.begin(), j.pc.end(), P[i][c + 3]) != j.pc.end();
+        l += " (" + std::to_string(m.node_entity_dim[w]) + "," + std::to_string(m.node_entity_tag[w]) + " uv " + std::to_string(m.node_u[w]) + "," +
+             std::to_string(m.node_v[w]) + (fixed ? " PC" : "") + " t " + std::to_string(norm(sub(X(P[i][c + 3]), X(w)))) + ")";
+      }
+      log(l);
+    }
+    log("invalid prisms after untangle: " + std::to_string(bad));
+  }
   auto& prisms = m.block(model::Shape::Prism, 1, 3, 1);
   for (std::size_t i = 0; i < P.size(); ++i) {
     valid_or_flip(model::Shape::Prism, P[i], {0, 2, 1, 3, 5, 4}, "prism on wall face " + std::to_string(pface[i]));
