@@ -4,7 +4,8 @@
 // of the lo side's (every hi triangle is the image of a lo triangle), that every node on a hi
 // entity has its $Periodic pair and the pairs coincide after the transform to 1e-12 of the model
 // size, that tet keeps the links, and that Gmsh loads the mesh (periodic section included) and
-// finds nothing inverted.
+// finds nothing inverted. Then workflows/rotor67.yaml (a rotation by 2 pi / 22) through sweep:
+// the same checks on its near field, pairs matched to 1e-12 of the casing radius.
 #include <doctest/doctest.h>
 
 #include "stages/io/mesh_io.hpp"
@@ -126,6 +127,37 @@ double check_periodic(const Mesh& m, const meshflow::periodic::Match& pm) {
   return worst;
 }
 
+// Gmsh loads `file` (its $Periodic section included), finds as many periodic node pairs as `m`
+// holds and no element with a non-positive Jacobian.
+void gmsh_check(const fs::path& dir, const fs::path& file, const Mesh& m) {
+  std::string py =
+      "import gmsh,sys\n"
+      "gmsh.initialize(); gmsh.option.setNumber('General.Terminal',0)\n"
+      "gmsh.open(sys.argv[1])\n"
+      "n=0\n"
+      "for d in (0,1,2):\n"
+      "  for (dd,t) in gmsh.model.getEntities(d):\n"
+      "    m,_,_,_=gmsh.model.mesh.getPeriodicNodes(dd,t)\n"
+      "    if m!=t: n+=len(gmsh.model.mesh.getPeriodicNodes(dd,t)[1])\n"
+      "gmsh.plugin.setNumber('AnalyseMeshQuality','JacobianDeterminant',1)\n"
+      "gmsh.plugin.setNumber('AnalyseMeshQuality','CreateView',1)\n"
+      "gmsh.plugin.run('AnalyseMeshQuality')\n"
+      "d=gmsh.view.getModelData(gmsh.view.getTags()[-1],0)\n"
+      "print(n, len(d[1]), sum(1 for v in d[2] if v[0]<=0))\n";
+  mftest::write_text(dir / "check.py", py);
+  auto g = mftest::sh(std::string(MESHFLOW_PYTHON) + " " + (dir / "check.py").string() + " " + file.string());
+  INFO(g.out);
+  REQUIRE(g.code == 0);
+  std::istringstream in(g.out);
+  long pairs = -1, checked = -1, bad = -1;
+  in >> pairs >> checked >> bad;
+  std::size_t ours = 0;
+  for (auto& L : m.periodic) ours += L.nodes.size();
+  CHECK(pairs == static_cast<long>(ours));
+  CHECK(checked > 0);
+  CHECK(bad == 0);
+}
+
 }  // namespace
 
 TEST_CASE("sweep with periodic_match: the periodic_hi side is the image of periodic_lo, $Periodic pairs coincide to 1e-12") {
@@ -154,30 +186,39 @@ TEST_CASE("sweep with periodic_match: the periodic_hi side is the image of perio
   CHECK(ms.at("invalid").get<int>() == 0);
   CHECK(ms.at("nonconforming_faces").get<int>() == 0);
 
-  // Gmsh reads the periodic section and finds the same pairs; nothing inverted
-  std::string py =
-      "import gmsh,sys\n"
-      "gmsh.initialize(); gmsh.option.setNumber('General.Terminal',0)\n"
-      "gmsh.open(sys.argv[1])\n"
-      "n=0\n"
-      "for d in (0,1,2):\n"
-      "  for (dd,t) in gmsh.model.getEntities(d):\n"
-      "    m,_,_,_=gmsh.model.mesh.getPeriodicNodes(dd,t)\n"
-      "    if m!=t: n+=len(gmsh.model.mesh.getPeriodicNodes(dd,t)[1])\n"
-      "gmsh.plugin.setNumber('AnalyseMeshQuality','JacobianDeterminant',1)\n"
-      "gmsh.plugin.setNumber('AnalyseMeshQuality','CreateView',1)\n"
-      "gmsh.plugin.run('AnalyseMeshQuality')\n"
-      "d=gmsh.view.getModelData(gmsh.view.getTags()[-1],0)\n"
-      "print(n, sum(1 for v in d[2] if v[0]<=0))\n";
-  mftest::write_text(dir / "check.py", py);
-  auto g = mftest::sh(std::string(MESHFLOW_PYTHON) + " " + (dir / "check.py").string() + " " + (out / "mesh.msh").string());
-  INFO(g.out);
-  REQUIRE(g.code == 0);
-  std::istringstream in(g.out);
-  long pairs = -1, bad = -1;
-  in >> pairs >> bad;
-  std::size_t ours = 0;
-  for (auto& L : mesh.periodic) ours += L.nodes.size();
-  CHECK(pairs == static_cast<long>(ours));
-  CHECK(bad == 0);
+  gmsh_check(dir, out / "mesh.msh", mesh);
+}
+
+TEST_CASE("workflows/rotor67.yaml through sweep: valid near field, periodic_hi the rotated image of periodic_lo to 1e-12 R") {
+  if (!fs::exists(fs::path(MESHFLOW_DATA_DIR) / "rotor67/rotor67geometry.dat")) return;
+  fs::path dir = mftest::temp_dir("sweep-rotor67");
+  auto r = mftest::sh(std::string(MESHFLOW_EXE) + " run " + (fs::path(MESHFLOW_SOURCE_DIR) / "workflows/rotor67.yaml").string() +
+                      " --threads 2 --cache " + (dir / "cache").string() + " --out " + (dir / "out").string() + " 2>&1");
+  INFO(r.out);
+  REQUIRE(r.code == 0);
+  fs::path out = dir / "out";
+  auto pm = meshflow::periodic::read(out / "periodic.mfper");
+  REQUIRE(pm.transform.kind == "rotation");
+  auto near = meshflow::io::read_mesh(out / "near.msh");
+  // the radius of the passage (casing) about the rotation axis x
+  double R = 0;
+  for (std::size_t i = 0; i < near.num_nodes(); ++i) R = std::max(R, std::hypot(near.y[i], near.z[i]));
+  double w = check_periodic(near, pm);
+  std::size_t prisms = 0, hexes = 0, wall_tris = 0;
+  for (auto& b : near.blocks) {
+    if (b.shape == Shape::Prism) prisms += b.size();
+    if (b.shape == Shape::Hex) hexes += b.size();
+    if (b.shape == Shape::Tri && near.group_name(2, b.entity_tag) == "wall") wall_tris += b.size();
+  }
+  auto ms = meshflow::model::mesh_stats(near, 2);
+  MESSAGE("rotor67 near field: " << prisms << " prisms, " << hexes << " hexes, invalid " << ms.at("invalid") << ", min scaled Jacobian "
+                                 << ms.at("min_scaled_jacobian") << ", periodic max mismatch " << w << " (R " << R << ")");
+  CHECK(w <= 1e-12 * R);
+  CHECK(prisms > 10000);
+  CHECK(prisms == wall_tris);
+  CHECK(hexes > 0);
+  CHECK(ms.at("invalid").get<int>() == 0);
+  CHECK(ms.at("nonconforming_faces").get<int>() == 0);
+  gmsh_check(dir, out / "near.msh", near);
+  fs::remove_all(dir);
 }
