@@ -676,7 +676,9 @@ void Builder::build_slides() {
 // the deviation of d from the exact fluid normal is interpolated instead:
 // d(x) = normalise(n(x) + sum_c w_c (d_c - n_c)) over the cell's corners c, n = the exact fluid
 // normal (-face_normal). Where the grid's d is the normal (away from edges) this is the exact
-// normal; near edges the blend towards the edge values is kept. The thickness is the grid's.
+// normal; near edges the blend towards the edge values is kept. Only where the normal turns by
+// more than 30 degrees between the cell's corners and x; elsewhere the grid's own
+// interpolation. The thickness is the grid's.
 std::pair<double, shell::Vec3> Builder::face_field(int face, double u, double v) {
   const shell::FaceGrid* g = nullptr;
   for (auto& fg : SH.faces)
@@ -700,17 +702,21 @@ std::pair<double, shell::Vec3> Builder::face_field(int face, double u, double v)
   int i = std::min(int(x), g->nu - 2), j = std::min(int(y), g->nv - 2);
   double a = x - i, b = y - j;
   V3 dev{0, 0, 0};
+  double min_dot = 1;  // the largest turn of the normal between the cell's corners and x
   for (int dj = 0; dj < 2; ++dj)
     for (int di = 0; di < 2; ++di) {
       int ii = i + di, jj = j + dj;
       double w = (di ? a : 1 - a) * (dj ? b : 1 - b);
-      if (w == 0) continue;
       double uc = g->u0 + (g->u1 - g->u0) * ii / (g->nu - 1), vc = g->v0 + (g->v1 - g->v0) * jj / (g->nv - 1);
       V3 nc = mul(v3(S.face_normal(face, uc, vc)), -1.0);
       if (norm(nc) < 0.5) return td;  // a pole at a corner: the grid's direction
+      min_dot = std::min(min_dot, dot(nc, nx));
       const double* p = &g->data[(std::size_t(jj) * g->nu + ii) * 4];
       dev = add(dev, mul(sub(V3{p[1], p[2], p[3]}, nc), w));
     }
+  // where the normal turns by less than 30 degrees across the cell the grid resolves it: its
+  // own interpolation is kept (and the meshes of such faces are unchanged by this correction)
+  if (min_dot > std::cos(30 * M_PI / 180)) return td;
   V3 d = add(nx, dev);
   double l = norm(d);
   if (!(l > 0.5)) return td;  // the deviation undoes the normal: keep the grid's direction
