@@ -45,22 +45,45 @@ struct CadEdgeTable {
 CadEdgeTable tabulate(const cad::Shape& shape, int e, const Sizing& S) {
   CadEdgeTable T;
   cad::Range r = shape.edge_range(e);
+  // A seam of a wall face (Rotor 67's blade: its seam runs up the leading edge) is nearly
+  // straight, but the surface turns sharply across it: the triangles beside it are only as good
+  // as its divisions, so the surface's largest principal curvature there counts too.
+  int seam_face = -1;
+  for (int f : shape.edge_faces(e))
+    if (shape.face_tag(f) == cad::Tag::wall && shape.edge_is_seam(e, f)) seam_face = f;
   auto speed_kappa = [&](double t, double& sp) {
     cad::CurveDeriv d = shape.edge_eval(e, t);
     V3 d1 = v3(d.d1), d2 = v3(d.d2);
     sp = norm(d1);
-    return sp > 0 ? norm(cross(d1, d2)) / (sp * sp * sp) : 0.0;
+    double k = sp > 0 ? norm(cross(d1, d2)) / (sp * sp * sp) : 0.0;
+    if (seam_face >= 0) {
+      auto uv = shape.edge_uv(e, seam_face, t, false);
+      auto c = shape.face_curvature(seam_face, uv.u, uv.v);
+      if (c.defined) k = std::max({k, std::abs(c.k1), std::abs(c.k2)});
+    }
+    return k;
   };
   double dt = (r.hi - r.lo) / kSamples, s = 0, n = 0;
   T.t.push_back(r.lo), T.s.push_back(0), T.c.push_back(0);
   double sp0, k0 = speed_kappa(r.lo, sp0);
+  auto tangent = [&](double t) { return v3(shape.edge_eval(e, t).d1); };
   for (int i = 0; i < kSamples; ++i) {
-    double a = r.lo + i * dt, b = i + 1 == kSamples ? r.hi : a + dt;
-    double spm, km = speed_kappa(0.5 * (a + b), spm), sp1, k1 = speed_kappa(b, sp1);
-    s += (b - a) / 6 * (sp0 + 4 * spm + sp1);
-    n += (b - a) / 6 * (sp0 / S.h(k0) + 4 * spm / S.h(km) + sp1 / S.h(k1));
-    T.t.push_back(b), T.s.push_back(s), T.c.push_back(n);
-    sp0 = sp1, k0 = k1;
+    double a0 = r.lo + i * dt, b0 = i + 1 == kSamples ? r.hi : a0 + dt;
+    // A sub-interval over which the curve turns by more than 20 degrees is split in 32: a
+    // leading edge much smaller than the edge (Rotor 67's blade root: radius ~1e-3 of a 0.66
+    // long closed curve, the nose inside 2 of 256 uniform sub-intervals) would otherwise be
+    // missed by Simpson's rule and get far too few divisions.
+    V3 ta = tangent(a0), tb = tangent(b0);
+    int sub = 1;
+    if (norm(ta) > 0 && norm(tb) > 0 && dot(ta, tb) < std::cos(20 * M_PI / 180) * norm(ta) * norm(tb)) sub = 32;
+    for (int q = 0; q < sub; ++q) {
+      double a = a0 + (b0 - a0) * q / sub, b = q + 1 == sub ? b0 : a0 + (b0 - a0) * (q + 1) / sub;
+      double spm, km = speed_kappa(0.5 * (a + b), spm), sp1, k1 = speed_kappa(b, sp1);
+      s += (b - a) / 6 * (sp0 + 4 * spm + sp1);
+      n += (b - a) / 6 * (sp0 / S.h(k0) + 4 * spm / S.h(km) + sp1 / S.h(k1));
+      T.t.push_back(b), T.s.push_back(s), T.c.push_back(n);
+      sp0 = sp1, k0 = k1;
+    }
   }
   T.length = s, T.target = n;
   return T;
@@ -323,7 +346,12 @@ class Stage {
         auto [th, d] = sd.edge_field(nm.cad, t);
         pts.push_back(add(v3(shape.edge_point(nm.cad, t)), mul(V3{d[0], d[1], d[2]}, th)));
       }
-      return polyline_target(pts, S);
+      auto lt = polyline_target(pts, S);
+      // the shell image of a wall seam is swept from the seam's nodes: it needs the seam's
+      // resolution (across the surface, see tabulate), which its own polyline does not see
+      for (int f : shape.edge_faces(nm.cad))
+        if (shape.face_tag(f) == cad::Tag::wall && shape.edge_is_seam(nm.cad, f)) lt.second = std::max(lt.second, T.target);
+      return lt;
     }
     const nlohmann::json& st = junction(nm.cad, name).at("stations");
     if (st.size() < 2) throw StageError("balance: hex_junction block of edge " + std::to_string(nm.cad) + " has fewer than 2 stations; re-run shell");

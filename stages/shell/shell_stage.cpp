@@ -393,6 +393,30 @@ struct Stage {
         for (auto& n : other_normals[v]) d = unit(sub(d, mul(n, dot(d, n))));
       v_d[v] = d;
     }
+    // A vertex that is no corner: where a closed edge passes through its own vertex (both ends
+    // there, each side's direction the same at both ends) and the only other edges there are
+    // seams — Rotor 67's blade root and tip, whose vertex sits where the blade's seam runs up its
+    // leading edge. The mean of the end values is no direction of the wall there (it mixes the
+    // junction's two sides), and blending the edges towards it over blend_length thicknesses
+    // turns the directions round a nose far thinner than the layer, so the prisms there cross.
+    // So the closed edge is not blended there, and a seam ending there is blended towards the
+    // closed edge's value on the seam's face.
+    std::vector<int> through(nv, -1);  // vertex -> the closed edge passing through it
+    {
+      std::vector<std::vector<int>> at(nv);
+      for (int e = 0; e < ne; ++e)
+        if (E[e].kind != EdgeKind::none && E[e].kind != EdgeKind::seam)
+          for (int v : {E[e].v0, E[e].v1})
+            if (v >= 0 && (at[v].empty() || at[v].back() != e)) at[v].push_back(e);
+      for (int v = 0; v < nv; ++v) {
+        if (at[v].size() != 1) continue;
+        const EdgeInfo& I = E[at[v][0]];
+        if (I.v0 != v || I.v1 != v) continue;
+        bool same = true;
+        for (auto& [f, d] : I.dir) same = same && dot(d.front(), d.back()) > std::cos(10 * M_PI / 180);
+        if (same) through[v] = at[v][0];
+      }
+    }
     // blend the edge fields into the vertex values near their ends
     for (int e = 0; e < ne; ++e) {
       EdgeInfo& I = E[e];
@@ -402,6 +426,20 @@ struct Stage {
       for (int end = 0; end < 2; ++end) {
         int v = end ? I.v1 : I.v0;
         if (v < 0 || !v_has[v]) continue;
+        if (through[v] == e) continue;
+        Vec3 target = v_d[v];
+        if (through[v] >= 0 && I.kind == EdgeKind::seam) {
+          const EdgeInfo& C = E[through[v]];
+          auto it = C.dir.find(I.a);
+          if (it != C.dir.end()) {
+            // the closed edge's value at the station nearest the seam's end
+            Vec3 q = end ? I.p.back() : I.p.front();
+            std::size_t kb = 0;
+            for (std::size_t k = 1; k < C.p.size(); ++k)
+              if (norm(sub(C.p[k], q)) < norm(sub(C.p[kb], q))) kb = k;
+            target = it->second[kb];
+          }
+        }
         // within at most 30% of the edge from each end: on a short edge (the 0.004-long
         // trailing-edge arc of a rounded tip) the middle keeps its own averaged normal
         double R = std::min(blend * v_t[v], 0.3 * L);
@@ -410,7 +448,7 @@ struct Stage {
           double beta = R > 0 ? smoothstep(1 - a / R) : (a == 0 ? 1.0 : 0.0);
           if (a == 0) beta = 1;
           if (beta <= 0) continue;
-          for (auto& [f, d] : I.dir) d[k] = unit(add(mul(d[k], 1 - beta), mul(v_d[v], beta)));
+          for (auto& [f, d] : I.dir) d[k] = unit(add(mul(d[k], 1 - beta), mul(target, beta)));
           if (a == 0) I.th[k] = v_t[v];
         }
       }

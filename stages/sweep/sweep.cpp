@@ -7,6 +7,7 @@
 #include "stages/cad/cad.hpp"
 #include "stages/cad/vec3.hpp"
 #include "stages/model/quality.hpp"
+#include "stages/periodic_match/periodic.hpp"
 #include "stages/shell/shell.hpp"
 #include "stages/sweep/uv_mesher.hpp"
 
@@ -60,8 +61,10 @@ struct Junction {
   std::vector<Station> st;
   // per division node k of w<edge>: the four nodes
   std::vector<std::uint32_t> p0, pa, pb, pc;
-  // interpolated station at edge parameter t
-  Station at(double t) const {
+  // interpolated station at edge parameter t; perA/perB: the periods of A's and B's surfaces
+  // (0: none), so that (u,v) is interpolated across a seam (a revolved hub: 2 pi -> 0) and not
+  // through the middle of the period
+  Station at(double t, std::array<double, 2> perA = {0, 0}, std::array<double, 2> perB = {0, 0}) const {
     if (st.size() == 1 || t <= st.front().t) return st.front();
     if (t >= st.back().t) return st.back();
     auto it = std::upper_bound(st.begin(), st.end(), t, [](double x, const Station& s) { return x < s.t; });
@@ -71,8 +74,13 @@ struct Junction {
     Station r;
     r.t = t;
     r.P0 = lerp(a.P0, b.P0, s), r.PA = lerp(a.PA, b.PA, s), r.PB = lerp(a.PB, b.PB, s), r.PC = lerp(a.PC, b.PC, s);
-    r.uvA = {a.uvA[0] + s * (b.uvA[0] - a.uvA[0]), a.uvA[1] + s * (b.uvA[1] - a.uvA[1])};
-    r.uvB = {a.uvB[0] + s * (b.uvB[0] - a.uvB[0]), a.uvB[1] + s * (b.uvB[1] - a.uvB[1])};
+    auto lerp_uv = [&](std::array<double, 2> p, std::array<double, 2> q, std::array<double, 2> per) {
+      for (int c = 0; c < 2; ++c)
+        if (per[c] > 0) q[c] -= per[c] * std::round((q[c] - p[c]) / per[c]);
+      return std::array<double, 2>{p[0] + s * (q[0] - p[0]), p[1] + s * (q[1] - p[1])};
+    };
+    r.uvA = lerp_uv(a.uvA, b.uvA, perA);
+    r.uvB = lerp_uv(a.uvB, b.uvB, perB);
     return r;
   }
 };
@@ -190,8 +198,8 @@ class Reparam {
 class Builder {
  public:
   Builder(const cad::Shape& s, const shell::ShellData& sh, const balance::Divisions& dv, const Options& o, Report& r,
-          const std::function<void(const std::string&)>& log)
-      : S(s), SH(sh), DV(dv), O(o), R(r), log_(log) {}
+          const std::function<void(const std::string&)>& log, const periodic::Match* pm)
+      : S(s), SH(sh), DV(dv), O(o), R(r), log_(log), PM(pm) {}
 
   model::Mesh run();
 
@@ -202,6 +210,7 @@ class Builder {
   Options O;
   Report& R;
   std::function<void(const std::string&)> log_;
+  const periodic::Match* PM = nullptr;           // periodic_hi faces are copies of their periodic_lo partners
   model::Mesh m;
   int nf = 0, ne = 0, nv = 0;
   std::vector<char> wall;
@@ -236,14 +245,27 @@ class Builder {
   V3 X(std::uint32_t i) const { return {m.x[i], m.y[i], m.z[i]}; }
   double edge_h(int e, double t, double hmax) const;
   std::vector<double> own_division(int e, double hmax) const;
+  bool seam_of_wall(int e) const {
+    for (int f : S.edge_faces(e))
+      if (wall[f] && S.edge_is_seam(e, f)) return true;
+    return false;
+  }
   void junction_ends();
   void build_edges();
   void build_junction_curves();
   void build_slides();
   void slide_ends();
   std::map<std::pair<int, int>, std::uint32_t> slide_end_image;  // (vertex, other face) -> image node on an edge
-  void mesh_face(int f);
+  void mesh_face(int f, int copy_from = -1);
+  // periodic: hi face `hi` as the image of the meshed lo face `lo` (hb: hi's boundary loop nodes)
+  std::vector<std::vector<std::uint32_t>> face_bnodes;  // per face: its boundary loop nodes (distinct, loop order)
+  std::map<std::uint32_t, std::uint32_t> per_master;   // hi node -> lo node
+  void snap(std::uint32_t h, std::uint32_t l);
+  void periodic_edges();
+  void copy_face(int lo, int hi, const std::vector<std::uint32_t>& hb);
+  void periodic_links();
   std::uint32_t shell_image(std::uint32_t n, int face);
+  std::pair<double, shell::Vec3> face_field(int face, double u, double v);
   void volume();
   void untangle(std::vector<std::vector<std::uint32_t>>& prisms);
 };
@@ -253,6 +275,16 @@ double Builder::edge_h(int e, double t, double hmax) const {
   V3 d1 = v3(d.d1), d2 = v3(d.d2);
   double s = norm(d1);
   double k = s > 0 ? norm(cross(d1, d2)) / (s * s * s) : 0;
+  // A seam of a wall face (the Rotor 67 blade's seam runs up its leading edge): the curve is
+  // nearly straight but the surface turns sharply across it, and the triangles beside the seam
+  // would be slivers along it cutting through the nose. Its size is the face's: the surface's
+  // largest principal curvature at the seam point counts too.
+  for (int f : S.edge_faces(e))
+    if (wall[f] && S.edge_is_seam(e, f)) {
+      auto uv = S.edge_uv(e, f, t, false);
+      auto c = S.face_curvature(f, uv.u, uv.v);
+      if (c.defined) k = std::max({k, std::abs(c.k1), std::abs(c.k2)});
+    }
   double theta = O.turn_angle_deg * M_PI / 180;
   double h = k > 0 ? theta / k : hmax;
   return std::clamp(h, O.min_size, hmax);
@@ -412,7 +444,7 @@ void Builder::build_edges() {
     else if (auto* d2 = DV.find("e" + std::to_string(e)))
       t = d2->nodes;
     else
-      t = own_division(e, O.farfield_size);
+      t = own_division(e, seam_of_wall(e) ? O.max_size : O.farfield_size);
     // cuts: [t0, c0] + the divisions mapped affinely onto [c0, c1] + [c1, tn]
     const Cut& c0 = cuts[e][0];
     const Cut& c1 = cuts[e][1];
@@ -446,23 +478,111 @@ void Builder::build_edges() {
   }
 }
 
+// Strip boundaries next to a seam. Where a junction ends at a vertex on a seam of A or B (a
+// closed junction edge around a wrapped face: Rotor 67's blade root and tip, the blade's seam
+// along its leading edge), junction_ends put that end's PA / PB on the seam; the stations next to
+// it, offset across the face by the shell's in-face direction, may land on the other side of the
+// seam when the seam leans against that direction (at a leading edge the seam moves across the
+// whole nose within one strip width), and the strip boundary then crosses the seam and folds. So
+// within two strip widths (L) of such an end the point is blended in (u,v) towards the end's
+// offset carried along the edge: uv = s (uv_edge(t) + (uv_end - uv_vertex)) + (1 - s) uv_station
+// (the station's uv taken in the period nearest), s = 1 - smoothstep(|P0 - V| / L). Along a
+// closed junction edge around a wrapped face (Rotor 67's blade root and tip: the blade's
+// leading and trailing edges are far smaller than a strip width, and the station points,
+// offset in 3D and projected, land on either side of the nose and fold the strip boundary
+// there), L is infinite: the strip boundary is the edge's p-curve offset by the end's constant
+// (u,v) offset, monotone along the edge like the edge itself.
 void Builder::build_junction_curves() {
+  struct SeamEnd {
+    V3 p0{};
+    std::array<double, 2> delta{};
+    double L = 0;
+  };
+  auto seam_end = [&](const Junction& j, int face, std::uint32_t endnode, int end, std::uint32_t p0) -> std::optional<SeamEnd> {
+    if (m.node_entity_dim[endnode] != 1) return std::nullopt;
+    int e = m.node_entity_tag[endnode] - 1;
+    if (!S.edge_is_seam(e, face)) return std::nullopt;
+    auto rr = S.edge_range(e);
+    auto vs = S.edge_vertices(e);
+    int V = j.vertices[end];
+    if (vs[0] != V && vs[1] != V) return std::nullopt;
+    double tv = vs[0] == V ? rr.lo : rr.hi;
+    auto a = S.edge_uv(e, face, tv, false), b = S.edge_uv(e, face, m.node_u[endnode], false);
+    SeamEnd r;
+    r.p0 = X(p0);
+    r.delta = {b.u - a.u, b.v - a.v};
+    // a closed junction edge around a wrapped face (both ends at V): the whole strip boundary
+    // is the edge's p-curve offset by the end's (u,v) offset (for a lofted blade: the same
+    // section parameter one strip width up the span); see above
+    r.L = j.vertices[0] == j.vertices[1] ? INFINITY : 2 * norm(sub(X(endnode), r.p0));
+    return r;
+  };
+  auto smoothstep = [](double x) { x = std::clamp(x, 0.0, 1.0); return x * x * (3 - 2 * x); };
+  // the (u,v) of a station point near a seam end (see above); `uv` is the projection's
+  auto blend = [&](const Junction& j, int face, const std::vector<std::optional<SeamEnd>>& ends, V3 P0, double t,
+                   std::array<double, 2> uv) -> std::optional<std::array<double, 2>> {
+    const SeamEnd* best = nullptr;
+    double dbest = INFINITY;
+    for (auto& se : ends)
+      if (se) {
+        double d = norm(sub(P0, se->p0));
+        if (d < se->L && d < dbest) dbest = d, best = &*se;
+      }
+    if (!best) return std::nullopt;
+    double s = 1 - smoothstep(dbest / best->L);
+    auto eu = S.edge_uv(j.edge, face, t, false);
+    std::array<double, 2> target{eu.u + best->delta[0], eu.v + best->delta[1]};
+    auto per = S.face_periods(face);
+    for (int c = 0; c < 2; ++c)
+      if (per[c] > 0) uv[c] += per[c] * std::round((target[c] - uv[c]) / per[c]);
+    if (std::isinf(best->L)) {
+      // all along a closed edge: the station's own offset across the p-curve (its width varies
+      // with the thickness), without its component along the p-curve (which folds at a nose)
+      double dt = 1e-4 * (S.edge_range(j.edge).hi - S.edge_range(j.edge).lo);
+      auto e1 = S.edge_uv(j.edge, face, t + dt, false), e0 = S.edge_uv(j.edge, face, t - dt, false);
+      double tu = e1.u - e0.u, tv = e1.v - e0.v, tl = std::hypot(tu, tv);
+      if (tl > 0) {
+        double nu = -tv / tl, nv = tu / tl;
+        double off = (uv[0] - eu.u) * nu + (uv[1] - eu.v) * nv;
+        return std::array<double, 2>{eu.u + off * nu, eu.v + off * nv};
+      }
+    }
+    return std::array<double, 2>{s * target[0] + (1 - s) * uv[0], s * target[1] + (1 - s) * uv[1]};
+  };
   for (auto& j : J) {
     const auto& w = en[j.edge];
     const auto& t = et[j.edge];
     std::size_t n = w.size();
+    std::vector<std::optional<SeamEnd>> endsA, endsB;
+    for (int end = 0; end < 2; ++end) {
+      std::size_t k = end == 0 ? 0 : n - 1;
+      endsA.push_back(seam_end(j, j.A, j.pa[k], end, w[k]));
+      endsB.push_back(seam_end(j, j.B, j.pb[k], end, w[k]));
+    }
     for (std::size_t k = 0; k < n; ++k) {
       j.p0[k] = w[k];
       if (k == 0 || k + 1 == n) continue;  // shared end cross-sections, set by junction_ends
-      auto s = j.at(t[k]);
+      auto s = j.at(t[k], S.face_periods(j.A), S.face_periods(j.B));
       auto pa = S.project_to_face(j.A, cv(s.PA), cad::Vec2{s.uvA[0], s.uvA[1]});
       auto pb = S.project_to_face(j.B, cv(s.PB), cad::Vec2{s.uvB[0], s.uvB[1]});
+      if (auto uv = blend(j, j.A, endsA, X(w[k]), t[k], {pa.u, pa.v})) {
+        pa.u = (*uv)[0], pa.v = (*uv)[1];
+        pa.point = S.face_point(j.A, pa.u, pa.v);
+      }
+      if (auto uv = blend(j, j.B, endsB, X(w[k]), t[k], {pb.u, pb.v})) {
+        pb.u = (*uv)[0], pb.v = (*uv)[1];
+        pb.point = S.face_point(j.B, pb.u, pb.v);
+      }
       j.pa[k] = mk(v3(pa.point), 2, j.A + 1, pa.u, pa.v);
       uv_on[j.pa[k]] = {pa.u, pa.v};
       j.pb[k] = mk(v3(pb.point), 2, j.B + 1, pb.u, pb.v);
       uv_on[j.pb[k]] = {pb.u, pb.v};
+      if (std::getenv("MESHFLOW_SWEEP_DEBUG") && (k < 4 || k + 4 > n))
+        log("junction " + std::to_string(j.edge) + " station " + std::to_string(k) + "/" + std::to_string(n) + " t " + std::to_string(t[k]) +
+            ": P0 " + fmt(X(w[k])) + " PA " + fmt(v3(pa.point)) + " (uv " + std::to_string(pa.u) + "," + std::to_string(pa.v) + ") PB " +
+            fmt(v3(pb.point)) + " (uv " + std::to_string(pb.u) + "," + std::to_string(pb.v) + ")");
       // the outer corner: PA's shell image along A's field, as the shell defines PC
-      auto [th, d] = SH.face_field(j.A, pa.u, pa.v);
+      auto [th, d] = face_field(j.A, pa.u, pa.v);
       j.pc[k] = mk(add(v3(pa.point), mul(V3{d[0], d[1], d[2]}, th)), 3, 1);
     }
     for (std::size_t k = 0; k < n; ++k) {
@@ -547,6 +667,63 @@ void Builder::build_slides() {
   }
 }
 
+// The shell's face field at (u,v), its direction corrected for the grid's resolution: the grid
+// (shell.hpp) holds d at its nodes and face_field interpolates d bilinearly, which is the fluid
+// normal only where the normal turns slowly across a grid cell. Where the face turns within a
+// cell (Rotor 67's blade: its leading and trailing edges, radius ~1e-3 ft, lie inside one cell
+// of the 56-column grid around the wrapped section) the interpolated direction is a mean of the
+// normals on both sides of the nose, nearly tangent to the wall, and the prisms there fold. So
+// the deviation of d from the exact fluid normal is interpolated instead:
+// d(x) = normalise(n(x) + sum_c w_c (d_c - n_c)) over the cell's corners c, n = the exact fluid
+// normal (-face_normal). Where the grid's d is the normal (away from edges) this is the exact
+// normal; near edges the blend towards the edge values is kept. Only where the normal turns by
+// more than 30 degrees between the cell's corners and x; elsewhere the grid's own
+// interpolation. The thickness is the grid's.
+std::pair<double, shell::Vec3> Builder::face_field(int face, double u, double v) {
+  const shell::FaceGrid* g = nullptr;
+  for (auto& fg : SH.faces)
+    if (fg.face == face) g = &fg;
+  if (g) {  // (u,v) of a periodic surface taken in the grid's period (a hub node at u = 2 pi - e, grid on [-0.14, 0.37])
+    auto per = S.face_periods(face);
+    double lo[2] = {g->u0, g->v0}, hi[2] = {g->u1, g->v1};
+    double* x[2] = {&u, &v};
+    for (int c = 0; c < 2; ++c)
+      if (per[c] > 0 && (*x[c] < lo[c] || *x[c] > hi[c])) {
+        double mid = 0.5 * (lo[c] + hi[c]);
+        *x[c] -= per[c] * std::round((*x[c] - mid) / per[c]);
+      }
+  }
+  auto td = SH.face_field(face, u, v);
+  if (!g || g->nu < 2 || g->nv < 2 || !(g->u1 > g->u0) || !(g->v1 > g->v0)) return td;
+  V3 nx = mul(v3(S.face_normal(face, u, v)), -1.0);
+  if (norm(nx) < 0.5) return td;  // a pole: the grid's direction
+  double x = std::clamp((u - g->u0) / (g->u1 - g->u0) * (g->nu - 1), 0.0, double(g->nu - 1));
+  double y = std::clamp((v - g->v0) / (g->v1 - g->v0) * (g->nv - 1), 0.0, double(g->nv - 1));
+  int i = std::min(int(x), g->nu - 2), j = std::min(int(y), g->nv - 2);
+  double a = x - i, b = y - j;
+  V3 dev{0, 0, 0};
+  double min_dot = 1;  // the largest turn of the normal between the cell's corners and x
+  for (int dj = 0; dj < 2; ++dj)
+    for (int di = 0; di < 2; ++di) {
+      int ii = i + di, jj = j + dj;
+      double w = (di ? a : 1 - a) * (dj ? b : 1 - b);
+      double uc = g->u0 + (g->u1 - g->u0) * ii / (g->nu - 1), vc = g->v0 + (g->v1 - g->v0) * jj / (g->nv - 1);
+      V3 nc = mul(v3(S.face_normal(face, uc, vc)), -1.0);
+      if (norm(nc) < 0.5) return td;  // a pole at a corner: the grid's direction
+      min_dot = std::min(min_dot, dot(nc, nx));
+      const double* p = &g->data[(std::size_t(jj) * g->nu + ii) * 4];
+      dev = add(dev, mul(sub(V3{p[1], p[2], p[3]}, nc), w));
+    }
+  // where the normal turns by less than 30 degrees across the cell the grid resolves it: its
+  // own interpolation is kept (and the meshes of such faces are unchanged by this correction)
+  if (min_dot > std::cos(30 * M_PI / 180)) return td;
+  V3 d = add(nx, dev);
+  double l = norm(d);
+  if (!(l > 0.5)) return td;  // the deviation undoes the normal: keep the grid's direction
+  d = mul(d, 1.0 / l);
+  return {td.first, shell::Vec3{d[0], d[1], d[2]}};
+}
+
 std::uint32_t Builder::shell_image(std::uint32_t n, int face) {
   auto it = image.find(n);
   if (it != image.end()) return it->second;
@@ -561,7 +738,7 @@ std::uint32_t Builder::shell_image(std::uint32_t n, int face) {
   } else if (dim == 1) {
     td = SH.edge_field(tag - 1, m.node_u[n], face);
   } else {
-    td = SH.face_field(face, m.node_u[n], m.node_v[n]);
+    td = face_field(face, m.node_u[n], m.node_v[n]);
   }
   V3 x = add(X(n), mul(V3{td.second[0], td.second[1], td.second[2]}, td.first));
   std::uint32_t img = mk(x, 3, 1);
@@ -570,7 +747,7 @@ std::uint32_t Builder::shell_image(std::uint32_t n, int face) {
 }
 
 // ── one face: boundary loops in (u,v), the 2D mesher, nodes and triangles ────────────────
-void Builder::mesh_face(int f) {
+void Builder::mesh_face(int f, int copy_from) {
   struct LP {
     std::uint32_t node;
     std::array<double, 2> uv;
@@ -611,9 +788,13 @@ void Builder::mesh_face(int f) {
     auto pr = std::isnan(hint[0]) ? S.project_to_face(f, cv(X(n))) : S.project_to_face(f, cv(X(n)), cad::Vec2{hint[0], hint[1]});
     return {pr.u, pr.v};
   };
-  for (auto& wire : S.face_wires(f)) {
+  // One wire's loop in the (unwrapped) parameter plane; flip[i]: run use i against the wire's
+  // orientation (see the closure check below).
+  auto build_wire = [&](const std::vector<cad::EdgeUse>& wire, const std::vector<char>& flip) {
     std::vector<LP> raw;
-    for (auto& eu : wire) {
+    for (std::size_t iu = 0; iu < wire.size(); ++iu) {
+      cad::EdgeUse eu = wire[iu];
+      if (flip[iu]) eu.reversed = !eu.reversed;
       int e = eu.edge;
       if (S.edge_degenerate(e)) {
         auto r = S.edge_range(e);
@@ -687,6 +868,53 @@ void Builder::mesh_face(int f) {
         if (std::abs(d) > 0.75 * per[k]) raw[i].uv[k] -= per[k] * std::round(d / per[k]);
       }
     }
+    // the loop's last point and its first, one node at one place after unwrapping (a wrapped
+    // face's seam ends where its rebuilt wire starts)
+    while (raw.size() > 3 && raw.front().node == raw.back().node &&
+           std::abs(raw.front().uv[0] - raw.back().uv[0]) + std::abs(raw.front().uv[1] - raw.back().uv[1]) <
+               1e-9 * (1 + std::abs(raw.front().uv[0]) + std::abs(raw.front().uv[1])))
+      raw.pop_back();
+    return raw;
+  };
+  // A wire closes in the plane when its closing segment (last point -> first) does not jump by
+  // most of a period (a pole's segment may). A wrapped face (periodic in u, bounded by two closed
+  // edges and a seam used twice, e.g. a blade lofted around its sections) whose closed edges
+  // both run the same way round (Rotor 67's blade: hub and casing curves both u 1 -> 0, the seam
+  // up at u = 1 and down at u = 0) does not: the unwrapped chain ends two periods away from its
+  // start and the loop crosses the whole domain. The wire is then rebuilt with the first closed,
+  // full-period edge use (or its junction/slide curve) run the other way, which makes it the
+  // boundary of the face's band [0, period] x [v0, v1]; the 3D face is the same either way (an
+  // orientation defect of the wire, not of the geometry).
+  auto per_f = S.face_periods(f);
+  auto closes = [&](const std::vector<LP>& raw) {
+    if (raw.size() < 3 || raw.back().pole) return true;
+    for (int k = 0; k < 2; ++k)
+      if (per_f[k] > 0 && std::abs(raw.front().uv[k] - raw.back().uv[k]) > 0.75 * per_f[k]) return false;
+    return true;
+  };
+  for (auto& wire : S.face_wires(f)) {
+    std::vector<char> flip(wire.size(), 0);
+    std::vector<LP> raw = build_wire(wire, flip);
+    if (!closes(raw)) {
+      bool fixed = false;
+      for (std::size_t iu = 0; iu < wire.size() && !fixed; ++iu) {
+        int e = wire[iu].edge;
+        auto vs = S.edge_vertices(e);
+        if (S.edge_degenerate(e) || S.edge_is_seam(e, f) || vs[0] != vs[1]) continue;
+        flip[iu] = 1;
+        auto r2 = build_wire(wire, flip);
+        if (closes(r2)) {
+          raw = std::move(r2), fixed = true;
+          log("sweep: face " + std::to_string(f) + ": the wire does not close in the parameter plane (wrapped face); closed edge " +
+              std::to_string(e) + " taken the other way round");
+        }
+        flip[iu] = 0;
+      }
+      if (!fixed)
+        throw StageError("sweep: face " + std::to_string(f) + " (" + cad::tag_name(S.face_tag(f)) + ", " + S.face_surface_type(f) +
+                         "): a boundary loop does not close in the parameter plane (it ends a period away from its start) "
+                         "and no closed edge of the loop can be reversed to close it; heal the face (its wire orientation)");
+    }
     if (raw.size() >= 3) loops.push_back(std::move(raw));
   }
   if (loops.empty()) return;
@@ -705,7 +933,28 @@ void Builder::mesh_face(int f) {
         if (mean > hi) shift = -per[k] * std::ceil((mean - hi) / per[k]);
         for (auto& p : loops[l]) p.uv[k] += shift;
       }
+      // all loops a period away from the face's parameter range (a rebuilt wrapped wire
+      // unwrapped from its seam's far side): back into it, where Reparam's tables, the shell's
+      // face grid and the node parameters of the contract live
+      auto b = S.face_uv_bounds(f);
+      double centre = k == 0 ? 0.5 * (b.u0 + b.u1) : 0.5 * (b.v0 + b.v1);
+      double mid = 0.5 * (lo + hi);
+      double n = std::round((centre - mid) / per[k]);
+      if (n != 0)
+        for (auto& l : loops)
+          for (auto& p : l) p.uv[k] += n * per[k];
     }
+  }
+  {
+    std::set<std::uint32_t> seen;
+    face_bnodes[f].clear();
+    for (auto& l : loops)
+      for (auto& p : l)
+        if (seen.insert(p.node).second) face_bnodes[f].push_back(p.node);
+  }
+  if (copy_from >= 0) {
+    copy_face(copy_from, f, face_bnodes[f]);
+    return;
   }
   Reparam RP(S, f);
   detail::UVMeshInput in;
@@ -859,8 +1108,9 @@ void Builder::mesh_face(int f) {
 // three walls meet and the shell's direction field turns faster than the triangles are
 // wide): the direction of each wall node of an inverted prism and of its neighbours becomes
 // the normalised mean of its own and its neighbours' directions, the layer height their mean
-// (Jacobi passes, until every prism is valid or 40 passes). Images fixed by the block structure
-// (junction corners, images sliding on other faces) do not move.
+// (Jacobi passes, until every prism is valid or 60 passes, the last 40 also thinning the layer
+// at the nodes of inverted prisms). Images sliding on other faces never move; junction corners
+// only in a second round when the first fails (see below).
 void Builder::untangle(std::vector<std::vector<std::uint32_t>>& P) {
   auto valid = [&](const std::vector<std::uint32_t>& p) {
     double X3[18];
@@ -876,52 +1126,232 @@ void Builder::untangle(std::vector<std::vector<std::uint32_t>>& P) {
         if (j != i) nb[p[i]].insert(p[j]);
     }
   std::set<std::uint32_t> fixed_img;
-  for (auto& j : J)
-    for (auto n : j.pc) fixed_img.insert(n);
   auto movable = [&](std::uint32_t w) {
     std::uint32_t i = img.at(w);
     return !fixed_img.count(i) && m.node_entity_dim[i] == 3;
   };
-  for (int pass = 0; pass < 60; ++pass) {
-    std::set<std::uint32_t> bad;
-    for (auto& p : P)
-      if (!valid(p)) {
-        std::vector<std::uint32_t> q{p[0], p[2], p[1], p[3], p[5], p[4]};
-        if (valid(q)) continue;  // the other orientation is valid: flipped later
-        for (int i = 0; i < 3; ++i) bad.insert(p[i]);
+  // one round of at most 60 passes; true when every prism is valid
+  auto round = [&](const std::string& what) {
+    for (int pass = 0; pass < 60; ++pass) {
+      std::set<std::uint32_t> bad;
+      for (auto& p : P)
+        if (!valid(p)) {
+          std::vector<std::uint32_t> q{p[0], p[2], p[1], p[3], p[5], p[4]};
+          if (valid(q)) continue;  // the other orientation is valid: flipped later
+          for (int i = 0; i < 3; ++i) bad.insert(p[i]);
+        }
+      if (bad.empty()) {
+        if (pass > 0)
+          log("sweep: layer directions smoothed in " + std::to_string(pass) + " passes to untangle prisms" + what +
+              (R.thinned ? ", layer thinned at " + std::to_string(R.thinned) + " node moves" : std::string()));
+        return true;
       }
-    if (bad.empty()) {
-      if (pass > 0)
-        log("sweep: layer directions smoothed in " + std::to_string(pass) + " passes to untangle prisms" +
-            (R.thinned ? ", layer thinned at " + std::to_string(R.thinned) + " node moves" : std::string()));
-      return;
+      std::set<std::uint32_t> move;
+      for (auto w : bad) {
+        if (movable(w)) move.insert(w);
+        for (auto n : nb[w])
+          if (movable(n)) move.insert(n);
+      }
+      std::vector<std::pair<std::uint32_t, V3>> upd;
+      for (auto w : move) {
+        V3 d{0, 0, 0};
+        double t = 0;
+        int k = 0;
+        auto acc = [&](std::uint32_t n) {
+          V3 l = sub(X(img.at(n)), X(n));
+          double len = norm(l);
+          if (len > 0) d = add(d, mul(l, 1 / len)), t += len, ++k;
+        };
+        acc(w);
+        for (auto n : nb[w]) acc(n);
+        if (k == 0 || norm(d) == 0) continue;
+        double len = t / k;
+        // after 20 passes of direction smoothing, the layer is also thinned where it stays tangled
+        if (pass >= 20 && bad.count(w)) len = std::min(len, 0.8 * norm(sub(X(img.at(w)), X(w)))), ++R.thinned;
+        upd.push_back({img.at(w), add(X(w), mul(d, len / norm(d)))});
+      }
+      for (auto& [i, x] : upd) m.x[i] = x[0], m.y[i] = x[1], m.z[i] = x[2];
     }
-    std::set<std::uint32_t> move;
-    for (auto w : bad) {
-      if (movable(w)) move.insert(w);
-      for (auto n : nb[w])
-        if (movable(n)) move.insert(n);
-    }
-    std::vector<std::pair<std::uint32_t, V3>> upd;
-    for (auto w : move) {
-      V3 d{0, 0, 0};
-      double t = 0;
-      int k = 0;
-      auto acc = [&](std::uint32_t n) {
-        V3 l = sub(X(img.at(n)), X(n));
-        double len = norm(l);
-        if (len > 0) d = add(d, mul(l, 1 / len)), t += len, ++k;
-      };
-      acc(w);
-      for (auto n : nb[w]) acc(n);
-      if (k == 0 || norm(d) == 0) continue;
-      double len = t / k;
-      // after 20 passes of direction smoothing, the layer is also thinned where it stays tangled
-      if (pass >= 20 && bad.count(w)) len = std::min(len, 0.8 * norm(sub(X(img.at(w)), X(w)))), ++R.thinned;
-      upd.push_back({img.at(w), add(X(w), mul(d, len / norm(d)))});
-    }
-    for (auto& [i, x] : upd) m.x[i] = x[0], m.y[i] = x[1], m.z[i] = x[2];
+    return false;
+  };
+  // First with the junction corners fixed. Where that fails (Rotor 67: the hub and casing
+  // junctions at the blade's sharp trailing edge, whose corners PC fan across the nose while
+  // the blade's own directions flip), again from the start with the corners PC free to move too
+  // (they are the images of the strip boundaries; the hexes are checked afterwards).
+  for (auto& j : J)
+    for (auto n : j.pc) fixed_img.insert(n);
+  std::vector<double> x0 = m.x, y0 = m.y, z0 = m.z;
+  if (round("")) return;
+  m.x = x0, m.y = y0, m.z = z0;
+  R.thinned = 0;
+  fixed_img.clear();
+  round(" (junction corners moved too)");
+}
+
+// ── periodic: the hi side as the exact image of the lo side ─────────────────────────────
+// A hi node gets the position transform.apply(x_lo) bit for bit (so matched nodes coincide to
+// rounding after the map) and its parameters by projection onto its own CAD entity: on edges
+// and vertices the hi curves are intersection curves computed independently of the lo ones
+// (periodic.hpp: off by up to 4e-8 of the radius), so the node sits within that distance of its
+// curve, inside the CAD tolerance.
+void Builder::snap(std::uint32_t h, std::uint32_t l) {
+  auto y = PM->transform.apply({m.x[l], m.y[l], m.z[l]});
+  auto it = per_master.find(h);
+  if (it != per_master.end()) {
+    if (it->second != l)
+      throw StageError("sweep: periodic node " + std::to_string(h) + " at " + fmt(X(h)) + " is the image of two lo nodes (" +
+                       std::to_string(it->second) + " and " + std::to_string(l) + "); re-run periodic_match on the same heal output");
+    return;
   }
+  per_master[h] = l;
+  m.x[h] = y[0], m.y[h] = y[1], m.z[h] = y[2];
+  int dim = m.node_entity_dim[h], tag = m.node_entity_tag[h];
+  if (dim == 1) {
+    auto pr = S.project_to_edge(tag - 1, cad::Vec3{y[0], y[1], y[2]}, std::isnan(m.node_u[h]) ? std::optional<double>{} : m.node_u[h]);
+    m.node_u[h] = pr.t;
+  } else if (dim == 2) {
+    auto pr = std::isnan(m.node_u[h]) ? S.project_to_face(tag - 1, cad::Vec3{y[0], y[1], y[2]})
+                                      : S.project_to_face(tag - 1, cad::Vec3{y[0], y[1], y[2]}, cad::Vec2{m.node_u[h], m.node_v[h]});
+    m.node_u[h] = pr.u, m.node_v[h] = pr.v;
+    if (uv_on.count(h)) uv_on[h] = {pr.u, pr.v};
+  }
+}
+
+// Paired edges: the same number of nodes (balance made the divisions equal; junction or slide
+// cuts are placed alike on both sides), node k of hi = node k (or n-1-k, reversed) of lo.
+void Builder::periodic_edges() {
+  for (auto& pr : PM->vertices)
+    if (pr.lo != pr.hi && vnode.at(pr.lo) != kNone && vnode.at(pr.hi) != kNone) snap(vnode[pr.hi], vnode[pr.lo]);
+  for (auto& pr : PM->edges) {
+    if (pr.lo == pr.hi) continue;
+    const auto& a = en.at(pr.lo);
+    const auto& b = en.at(pr.hi);
+    if (a.size() != b.size())
+      throw StageError("sweep: periodic edges " + std::to_string(pr.lo) + " (lo, " + std::to_string(a.size()) + " nodes) and " +
+                       std::to_string(pr.hi) + " (hi, " + std::to_string(b.size()) +
+                       " nodes) differ; balance must give them equal divisions (needs: [heal, shell] and the periodic tags)");
+    for (std::size_t k = 0; k < a.size(); ++k) snap(b[pr.reversed ? b.size() - 1 - k : k], a[k]);
+  }
+}
+
+// The hi face's boundary nodes are matched to the lo face's by position after the map (each lo
+// node to the nearest hi node, which must be unambiguous: nearer than a third of the distance to
+// the second nearest, one to one), snapped, and the lo triangulation is copied with new interior
+// nodes; the triangles are reversed (the map carries lo's outward normal to hi's inward one) and
+// each is checked against hi's face normal.
+void Builder::copy_face(int lo, int hi, const std::vector<std::uint32_t>& hb) {
+  const auto& lb = face_bnodes.at(lo);
+  if (lb.size() != hb.size())
+    throw StageError("sweep: periodic faces " + std::to_string(lo) + " (lo) and " + std::to_string(hi) + " (hi) have " +
+                     std::to_string(lb.size()) + " and " + std::to_string(hb.size()) +
+                     " boundary nodes: their edges were divided differently; re-run balance and periodic_match on the same heal output");
+  std::map<std::uint32_t, std::uint32_t> P;  // lo -> hi
+  std::set<std::uint32_t> used;
+  // Known partners first: nodes of paired CAD edges and vertices (periodic_edges), and the shell
+  // images of paired wall nodes (where a wall slides on a periodic side, e.g. the hub: its edge
+  // on periodic_lo and the one on periodic_hi are paired, their nodes' images lie on the sides;
+  // the thickness may differ a little between the sides, so these are matched by their wall
+  // nodes and then snapped, not found by distance).
+  {
+    std::set<std::uint32_t> hset(hb.begin(), hb.end());
+    std::map<std::uint32_t, std::uint32_t> lo_to_hi, wall_of;
+    for (auto [h, l] : per_master) lo_to_hi[l] = h;
+    for (auto [w, i] : image) wall_of.emplace(i, w);
+    for (auto l : lb) {
+      std::uint32_t h = kNone;
+      if (auto it = lo_to_hi.find(l); it != lo_to_hi.end() && hset.count(it->second)) h = it->second;
+      else if (auto iw = wall_of.find(l); iw != wall_of.end())
+        if (auto ih = lo_to_hi.find(iw->second); ih != lo_to_hi.end())
+          if (auto ii = image.find(ih->second); ii != image.end() && hset.count(ii->second)) h = ii->second;
+      if (h != kNone && used.insert(h).second) P[l] = h;
+    }
+  }
+  for (auto l : lb) {
+    if (P.count(l)) continue;
+    auto y = PM->transform.apply({m.x[l], m.y[l], m.z[l]});
+    V3 Y{y[0], y[1], y[2]};
+    double d1 = INFINITY, d2 = INFINITY;
+    std::uint32_t best = kNone;
+    for (auto h : hb) {
+      if (used.count(h)) continue;
+      double d = norm(sub(X(h), Y));
+      if (d < d1) d2 = d1, d1 = d, best = h;
+      else if (d < d2) d2 = d;
+    }
+    if (best == kNone || !(d1 < d2 / 3) || !used.insert(best).second)
+      throw StageError("sweep: the boundary node " + std::to_string(l) + " of periodic_lo face " + std::to_string(lo) + " at " + fmt(X(l)) +
+                       " has no unambiguous image on periodic_hi face " + std::to_string(hi) + " (nearest " + std::to_string(d1) +
+                       ", next " + std::to_string(d2) + "); the two sides' boundaries differ (shell or junction asymmetric)");
+    P[l] = best;
+  }
+  for (auto l : lb) snap(P[l], l);
+  std::size_t added = 0;
+  for (auto& t : face_tris.at(lo)) {
+    std::array<std::uint32_t, 3> g{};
+    for (int i = 0; i < 3; ++i) {
+      std::uint32_t l = t[i];
+      auto it = P.find(l);
+      if (it == P.end()) {
+        auto y = PM->transform.apply({m.x[l], m.y[l], m.z[l]});
+        auto pr = S.project_to_face(hi, cad::Vec3{y[0], y[1], y[2]});
+        std::uint32_t h = mk(V3{y[0], y[1], y[2]}, 2, hi + 1, pr.u, pr.v);
+        per_master[h] = l;
+        it = P.emplace(l, h).first;
+        ++added;
+      }
+      g[i] = it->second;
+    }
+    std::swap(g[1], g[2]);
+    V3 a = X(g[0]), b = X(g[1]), c = X(g[2]);
+    V3 nrm = cross(sub(b, a), sub(c, a));
+    V3 cen = mul(add(add(a, b), c), 1.0 / 3);
+    auto pr = S.project_to_face(hi, cv(cen));
+    if (dot(nrm, v3(S.face_normal(hi, pr.u, pr.v))) < 0)
+      throw StageError("sweep: the image of a triangle of periodic_lo face " + std::to_string(lo) + " on periodic_hi face " +
+                       std::to_string(hi) + " at " + fmt(cen) + " points into the fluid: the transform does not glue the sides");
+    face_tris[hi].push_back(g);
+  }
+  ++R.faces_meshed;
+  R.periodic_faces_copied++;
+  log("sweep: periodic_hi face " + std::to_string(hi) + " = image of periodic_lo face " + std::to_string(lo) + ": " +
+      std::to_string(face_tris[hi].size()) + " triangles, " + std::to_string(lb.size()) + " boundary and " + std::to_string(added) +
+      " interior nodes");
+}
+
+// MSH $Periodic: one link per hi entity (face, edge, vertex) holding the pairs (hi node, lo node)
+// of the nodes classified on it; the lo node must lie on the hi entity's partner.
+void Builder::periodic_links() {
+  std::map<std::pair<int, int>, int> master;  // (dim, hi tag) -> lo tag (mesh tags: CAD id + 1)
+  for (auto& pr : PM->faces) master[{2, pr.hi + 1}] = pr.lo + 1;
+  for (auto& pr : PM->edges) master[{1, pr.hi + 1}] = pr.lo + 1;
+  for (auto& pr : PM->vertices) master[{0, pr.hi + 1}] = pr.lo + 1;
+  std::map<std::pair<int, int>, model::PeriodicLink> links;
+  double worst = 0;
+  for (auto [h, l] : per_master) {
+    int dim = m.node_entity_dim[h], tag = m.node_entity_tag[h];
+    auto it = master.find({dim, tag});
+    if (it == master.end() || it->second == tag) continue;  // not on a hi entity (e.g. a shell image on a face edge)
+    if (m.node_entity_dim[l] != dim || m.node_entity_tag[l] != it->second)
+      throw StageError("sweep: periodic node " + std::to_string(h) + " at " + fmt(X(h)) + " on entity (" + std::to_string(dim) + "," +
+                       std::to_string(tag) + ") has its lo node on (" + std::to_string(m.node_entity_dim[l]) + "," +
+                       std::to_string(m.node_entity_tag[l]) + "), not on the partner (" + std::to_string(dim) + "," +
+                       std::to_string(it->second) + ")");
+    auto& L = links[{dim, tag}];
+    L.dim = dim, L.tag = tag, L.master_tag = it->second;
+    L.affine.assign(PM->transform.affine.begin(), PM->transform.affine.end());
+    L.nodes.push_back({h, l});
+    auto y = PM->transform.apply({m.x[l], m.y[l], m.z[l]});
+    worst = std::max(worst, std::hypot(y[0] - m.x[h], y[1] - m.y[h], y[2] - m.z[h]));
+  }
+  // faces, then edges, then vertices (Gmsh's order), each by tag; pairs by hi node
+  for (int dim = 2; dim >= 0; --dim)
+    for (auto& [k, L] : links)
+      if (k.first == dim) {
+        R.periodic_pairs += L.nodes.size();
+        m.periodic.push_back(std::move(L));
+      }
+  R.periodic_max_mismatch = worst;
+  R.periodic_model_size = PM->model_size;
 }
 
 void Builder::volume() {
@@ -959,7 +1389,49 @@ void Builder::volume() {
       pface.push_back(f);
     }
   }
+  if (std::getenv("MESHFLOW_SWEEP_DEBUG")) {
+    int shown = 0, bad = 0;
+    for (std::size_t i = 0; i < P.size(); ++i) {
+      double X3[18];
+      for (int q = 0; q < 6; ++q) X3[3 * q] = m.x[P[i][q]], X3[3 * q + 1] = m.y[P[i][q]], X3[3 * q + 2] = m.z[P[i][q]];
+      auto eq = model::element_quality(model::Shape::Prism, 1, X3);
+      if (eq.valid) continue;
+      ++bad;
+      if (shown++ < 6) {
+        std::string l = "invalid before untangle: prism " + std::to_string(i) + " face " + std::to_string(pface[i]) + ":";
+        for (int q = 0; q < 3; ++q)
+          l += " " + std::to_string(P[i][q]) + fmt(X(P[i][q])) + " uv(" + std::to_string(m.node_u[P[i][q]]) + "," +
+               std::to_string(m.node_v[P[i][q]]) + ") dim " + std::to_string(m.node_entity_dim[P[i][q]]) + " -> d " +
+               fmt(sub(X(P[i][q + 3]), X(P[i][q])));
+        log(l);
+      }
+    }
+    log("invalid prisms before untangle: " + std::to_string(bad) + " of " + std::to_string(P.size()));
+  }
   untangle(P);
+  if (std::getenv("MESHFLOW_SWEEP_DEBUG")) {
+    int bad = 0;
+    for (std::size_t i = 0; i < P.size(); ++i) {
+      double X3[18], Y3[18];
+      std::vector<std::uint32_t> q{P[i][0], P[i][2], P[i][1], P[i][3], P[i][5], P[i][4]};
+      for (int c = 0; c < 6; ++c) {
+        X3[3 * c] = m.x[P[i][c]], X3[3 * c + 1] = m.y[P[i][c]], X3[3 * c + 2] = m.z[P[i][c]];
+        Y3[3 * c] = m.x[q[c]], Y3[3 * c + 1] = m.y[q[c]], Y3[3 * c + 2] = m.z[q[c]];
+      }
+      if (model::element_quality(model::Shape::Prism, 1, X3).valid || model::element_quality(model::Shape::Prism, 1, Y3).valid) continue;
+      ++bad;
+      std::string l = "invalid after untangle: face " + std::to_string(pface[i]) + ":";
+      for (int c = 0; c < 3; ++c) {
+        auto w = P[i][c];
+        bool fixed = false;
+        for (auto& j : J) fixed = fixed || std::find(j.pc.begin(), j.pc.end(), P[i][c + 3]) != j.pc.end();
+        l += " (" + std::to_string(m.node_entity_dim[w]) + "," + std::to_string(m.node_entity_tag[w]) + " uv " + std::to_string(m.node_u[w]) + "," +
+             std::to_string(m.node_v[w]) + (fixed ? " PC" : "") + " t " + std::to_string(norm(sub(X(P[i][c + 3]), X(w)))) + ")";
+      }
+      log(l);
+    }
+    log("invalid prisms after untangle: " + std::to_string(bad));
+  }
   auto& prisms = m.block(model::Shape::Prism, 1, 3, 1);
   for (std::size_t i = 0; i < P.size(); ++i) {
     valid_or_flip(model::Shape::Prism, P[i], {0, 2, 1, 3, 5, 4}, "prism on wall face " + std::to_string(pface[i]));
@@ -1003,6 +1475,7 @@ model::Mesh Builder::run() {
   slide_wall.assign(ne, -1);
   face_tris.assign(nf, {});
   face_quads.assign(nf, {});
+  face_bnodes.assign(nf, {});
 
   nlohmann::json H = nlohmann::json::parse(SH.header);
   for (auto& b : H.at("blocks")) {
@@ -1043,7 +1516,20 @@ model::Mesh Builder::run() {
   build_junction_curves();
   build_slides();
   auto ts = std::chrono::steady_clock::now();
-  for (int f = 0; f < nf; ++f) mesh_face(f);
+  if (!PM) {
+    for (int f = 0; f < nf; ++f) mesh_face(f);
+  } else {
+    // the lo sides and every other face first, then each periodic_hi face as the image of its lo
+    // partner (periodic.hpp: nodes at transform.apply(x), parameters by projection)
+    std::vector<int> lo_of(nf, -1);
+    for (auto& pr : PM->faces)
+      if (pr.lo != pr.hi) lo_of.at(pr.hi) = pr.lo;
+    periodic_edges();
+    for (int f = 0; f < nf; ++f)
+      if (lo_of[f] < 0) mesh_face(f);
+    for (int f = 0; f < nf; ++f)
+      if (lo_of[f] >= 0) mesh_face(f, lo_of[f]);
+  }
   R.surface_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - ts).count();
   volume();
   // boundary elements, lines, entities, physical groups
@@ -1080,6 +1566,7 @@ model::Mesh Builder::run() {
     if (a.entity_tag != b.entity_tag) return a.entity_tag < b.entity_tag;
     return static_cast<int>(a.shape) < static_cast<int>(b.shape);
   });
+  if (PM) periodic_links();
   R.nodes = m.num_nodes();
   R.total_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return std::move(m);
@@ -1092,12 +1579,16 @@ nlohmann::json Report::to_json() const {
           {"boundary_triangles", boundary_triangles}, {"prisms", prisms},     {"hexes", hexes},
           {"junction_blocks", junction_blocks},     {"edges_cut", edges_cut}, {"thinned", thinned}, {"nodes", nodes},
           {"faces_meshed", faces_meshed},           {"surface_seconds", surface_seconds},
+          {"periodic_faces_copied", periodic_faces_copied}, {"periodic_pairs", periodic_pairs},
+          {"periodic_max_mismatch", periodic_max_mismatch},
+          {"periodic_max_mismatch_rel", periodic_model_size > 0 ? periodic_max_mismatch / periodic_model_size : 0.0},
           {"total_seconds", total_seconds}};
 }
 
 model::Mesh sweep_mesh(const cad::Shape& shape, const shell::ShellData& shell, const balance::Divisions& div,
-                       const Options& opt, Report& report, const std::function<void(const std::string&)>& log) {
-  Builder b(shape, shell, div, opt, report, log);
+                       const Options& opt, Report& report, const std::function<void(const std::string&)>& log,
+                       const periodic::Match* match) {
+  Builder b(shape, shell, div, opt, report, log, match);
   return b.run();
 }
 

@@ -29,8 +29,13 @@
 //              triangles, junction strip quads on B, side quads of prisms sliding on them);
 //              3D prisms (wall triangle first, then its shell image, Gmsh order) and hexes in
 //              the near field. All linear (order 1), every element valid.
-//   periodic   one PeriodicLink per periodic_hi face, edge and vertex (slave = hi, master =
-//              lo, affine = the 4x4 transformation lo → hi), with node pairs.
+//   periodic   with a periodic match (needs: [..., periodic_match]): every periodic_hi face's
+//              mesh is the image of its periodic_lo partner's (triangles and quads, same
+//              connectivity, nodes at transform.apply(x_lo) exactly, parameters projected on the
+//              hi entity); one PeriodicLink per periodic_hi face, edge and vertex (slave = hi,
+//              master = lo, affine = the 4x4 transformation lo → hi) with the (hi, lo) pairs
+//              of the nodes classified on it. Without one, the hi faces are meshed on their own
+//              and the mesh has no links.
 //
 // ── Junction blocks ────────────────────────────────────────────────────────────────────
 // A hex_junction block of the shell along wall edge j (faces A, B) gives per division node k
@@ -61,6 +66,7 @@
 namespace meshflow::cad { class Shape; }
 namespace meshflow::shell { struct ShellData; }
 namespace meshflow::balance { struct Divisions; }
+namespace meshflow::periodic { struct Match; }
 
 namespace meshflow::sweep {
 
@@ -82,13 +88,20 @@ struct Report {
   std::size_t prisms = 0, hexes = 0, junction_blocks = 0, edges_cut = 0;
   std::size_t thinned = 0;  // node moves that thinned the layer to untangle prisms
   std::size_t nodes = 0, faces_meshed = 0;
+  std::size_t periodic_faces_copied = 0, periodic_pairs = 0;  // with a periodic match
+  double periodic_max_mismatch = 0;  // max |T(x_lo) - x_hi| over the $Periodic pairs (a length)
+  double periodic_model_size = 0;    // the match's model size (the diagonal of the shape's box)
   double surface_seconds = 0, total_seconds = 0;
   nlohmann::json to_json() const;
 };
 
 // The surface mesh of every face and the one-layer near field. Throws meshflow::StageError
 // naming the face/edge/block when something cannot be meshed or an element would be invalid.
+// With `match` (periodic_match's artifact for the same shape), every periodic_hi face is the
+// image of its periodic_lo partner (see "periodic" above; nodes at transform.apply(x_lo)) and
+// the mesh carries the PeriodicLinks.
 model::Mesh sweep_mesh(const cad::Shape& shape, const shell::ShellData& shell, const balance::Divisions& div,
-                       const Options& opt, Report& report, const std::function<void(const std::string&)>& log = {});
+                       const Options& opt, Report& report, const std::function<void(const std::string&)>& log = {},
+                       const periodic::Match* match = nullptr);
 
 }  // namespace meshflow::sweep

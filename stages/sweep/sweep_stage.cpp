@@ -5,6 +5,7 @@
 #include "stages/cad/cad.hpp"
 #include "stages/io/mesh_io.hpp"
 #include "stages/model/quality.hpp"
+#include "stages/periodic_match/periodic.hpp"
 #include "stages/shell/shell.hpp"
 #include "stages/sweep/sweep.hpp"
 
@@ -12,6 +13,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <optional>
 
 namespace meshflow::sweep {
 namespace {
@@ -22,6 +24,11 @@ void run(StageContext& ctx) {
   cad::Shape shape = cad::Shape::load(ctx.input("shape").path);
   shell::ShellData sh = shell::read(ctx.input("shell").path);
   balance::Divisions div = balance::read(ctx.input("divisions").path);
+  // optional: a periodic match (needs: [..., periodic_match]) makes the hi sides copies of the lo sides
+  std::optional<periodic::Match> match;
+  if (auto ps = ctx.inputs_of("periodic"); !ps.empty()) match = periodic::read(ps[0]->path);
+  else if (!shape.faces_with_tag(cad::Tag::periodic_hi).empty())
+    ctx.log("sweep: the shape has periodic_hi faces but no periodic_match in needs: they are meshed on their own (no $Periodic)");
 
   // the wall sizing is the divisions' own (balance's parameters), so faces match their edges
   nlohmann::json bp = nlohmann::json::parse(div.params_json);
@@ -48,7 +55,7 @@ void run(StageContext& ctx) {
 
   ctx.progress(0.1, "surface meshes and the near field");
   Report rep;
-  model::Mesh m = sweep_mesh(shape, sh, div, o, rep, [&](const std::string& l) { ctx.log(l); });
+  model::Mesh m = sweep_mesh(shape, sh, div, o, rep, [&](const std::string& l) { ctx.log(l); }, match ? &*match : nullptr);
   ctx.progress(0.85, "checking");
   m.check();
   nlohmann::json ms = model::mesh_stats(m, ctx.threads());
