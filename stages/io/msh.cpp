@@ -135,8 +135,28 @@ Mesh read_msh4(Cursor& c, bool binary, const std::string& path) {
           c.fail("inconsistent counts: the node blocks hold more nodes than the " + std::to_string(nnodes) +
                      " declared in the $Nodes header", binary);
         size_t first = node_tags.size();
-        for (std::uint64_t i = 0; i < n; ++i) node_tags.push_back(S("node tag"));
         const int npar = param ? dim : 0;
+        if (binary && c.has(n * 8 * (4 + npar)) && !param) {
+          // fast path (the whole block is there): tags, then x y z per node, copied in bulk
+          node_tags.resize(first + n);
+          std::memcpy(node_tags.data() + first, c.at(), n * 8);
+          c.skip(n * 8);
+          const char* p = c.at();
+          for (std::uint64_t i = 0; i < n; ++i, p += 24) {
+            double v[3];
+            std::memcpy(v, p, 24);
+            if (!std::isfinite(v[0]) || !std::isfinite(v[1]) || !std::isfinite(v[2]))
+              c.fail("node " + std::to_string(node_tags[first + i]) + " has a non-finite coordinate", binary,
+                     c.pos() + 24 * i);
+            m.x.push_back(v[0]), m.y.push_back(v[1]), m.z.push_back(v[2]);
+            if (any_param) m.node_u.push_back(NAN), m.node_v.push_back(NAN);
+          }
+          c.skip(n * 24);
+          m.node_entity_dim.insert(m.node_entity_dim.end(), n, dim);
+          m.node_entity_tag.insert(m.node_entity_tag.end(), n, tag);
+          continue;
+        }
+        for (std::uint64_t i = 0; i < n; ++i) node_tags.push_back(S("node tag"));
         if (param && !any_param) {
           any_param = true;
           m.node_u.assign(first, NAN);
@@ -192,6 +212,32 @@ Mesh read_msh4(Cursor& c, bool binary, const std::string& path) {
         if (n > c.data().size()) c.fail("implausible element count " + std::to_string(n) + " (truncated file?)", binary);
         blk.nodes.reserve(n * npe);
         blk.tags.reserve(n);
+        if (binary && c.has(n * 8 * (1 + npe))) {
+          // fast path (the whole block is there): tag and node tags per element, no check per value
+          const char* p = c.at();
+          const size_t rec = 8 * (1 + npe);
+          auto u64 = [](const char* q) {
+            std::uint64_t v;
+            std::memcpy(&v, q, 8);
+            return v;
+          };
+          for (std::uint64_t e = 0; e < n; ++e, p += rec) {
+            const std::uint64_t etag = u64(p);
+            blk.tags.push_back(etag);
+            for (int k = 0; k < npe; ++k) {
+              const std::uint64_t t = u64(p + 8 * (1 + k));
+              std::uint32_t idx = index.find(t);
+              if (idx == TagIndex::kNone)
+                c.fail("element " + std::to_string(etag) + " refers to node " + std::to_string(t) +
+                           ", which is not in $Nodes (node index out of range)",
+                       binary, c.pos() + e * rec + 8 * (1 + k));
+              blk.nodes.push_back(idx);
+            }
+          }
+          c.skip(n * rec);
+          m.blocks.push_back(std::move(blk));
+          continue;
+        }
         for (std::uint64_t e = 0; e < n; ++e) {
           blk.tags.push_back(S("element tag"));
           for (int k = 0; k < npe; ++k) {

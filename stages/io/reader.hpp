@@ -19,6 +19,18 @@ namespace meshflow::io::detail {
 inline std::string slurp(const std::filesystem::path& p) {
   std::ifstream in(p, std::ios::binary);
   if (!in) throw MeshIOError(p.string() + ": cannot open the file for reading");
+  // one read into a buffer of the file's size (a stringstream copies a 700 MB mesh twice)
+  std::error_code ec;
+  const auto size = std::filesystem::file_size(p, ec);
+  if (!ec) {
+    std::string s;
+    s.resize(size);
+    in.read(s.data(), static_cast<std::streamsize>(size));
+    s.resize(static_cast<size_t>(in.gcount()));
+    if (in.gcount() == static_cast<std::streamsize>(size)) return s;
+    in.clear();
+    in.seekg(0);
+  }
   std::ostringstream ss;
   ss << in.rdbuf();
   return ss.str();
@@ -76,6 +88,11 @@ class Cursor {
     if (!s.empty() && s.back() == '\r') s.pop_back();
     return s;
   }
+  // Binary bulk reads: true when `bytes` more bytes are there (then `at()` points at them and
+  // `skip` moves past), so fixed-size records can be copied without a check per value.
+  bool has(size_t bytes) const { return pos_ <= d_.size() && d_.size() - pos_ >= bytes; }
+  const char* at() const { return d_.data() + pos_; }
+  void skip(size_t bytes) { pos_ += bytes; }
   template <class T>
   T bin(const char* what) {
     if (pos_ + sizeof(T) > d_.size())

@@ -1,6 +1,7 @@
 // stages/io's registrations with the engine: the "mesh" artifact type (stored as binary MSH
-// 4.1; formats msh, msh-ascii, vtu, nektar; summary = mesh_stats) and the commands
-// `meshflow quality FILE [--json] [--threads N]` and `meshflow convert IN OUT [--ascii]`.
+// 4.1; formats msh, msh-ascii, msh-plain (no parametric coordinates), vtu, nektar; summary =
+// mesh_stats) and the commands `meshflow quality FILE [--json] [--threads N]` and
+// `meshflow convert IN OUT [--ascii] [--no-parametric]`.
 #include "engine/artifact_type.hpp"
 #include "engine/command.hpp"
 #include "stages/io/mesh_io.hpp"
@@ -105,22 +106,32 @@ int quality_cmd(const std::vector<std::string>& args) {
   }
 }
 
+// Drops the nodes' parametric coordinates on their CAD curves/surfaces: MSH without them is
+// what readers that do not support them load (meshio 5 refuses parametric node blocks).
+void strip_parametric(model::Mesh& m) {
+  m.node_u.clear();
+  m.node_v.clear();
+}
+
 int convert_cmd(const std::vector<std::string>& args) {
+  const char* usage = "usage: meshflow convert IN OUT [--ascii] [--no-parametric]   (formats by extension: .msh .vtu .xml)\n";
   std::vector<std::string> files;
-  bool ascii = false;
+  bool ascii = false, no_parametric = false;
   for (auto& a : args) {
     if (a == "--ascii") ascii = true;
+    else if (a == "--no-parametric") no_parametric = true;
     else if (!a.empty() && a[0] == '-') {
-      std::cerr << "meshflow convert: unknown option " << a << "\nusage: meshflow convert IN OUT [--ascii]\n";
+      std::cerr << "meshflow convert: unknown option " << a << "\n" << usage;
       return 2;
     } else files.push_back(a);
   }
   if (files.size() != 2) {
-    std::cerr << "usage: meshflow convert IN OUT [--ascii]   (formats by extension: .msh .vtu .xml)\n";
+    std::cerr << usage;
     return 2;
   }
   try {
     auto m = read_mesh(files[0]);
+    if (no_parametric) strip_parametric(m);
     std::string e = ext_of(files[1]);
     if (e == ".msh") write_msh(m, files[1], !ascii);
     else write_mesh(m, files[1]);
@@ -137,12 +148,22 @@ ArtifactFormat fmt(const char* ext, const char* summary, MeshFormat f) {
           }};
 }
 
+ArtifactFormat plain_msh() {
+  return {".plain.msh", "Gmsh MSH 4.1 binary without parametric node coordinates (for readers without them, e.g. meshio 5)",
+          [](const std::filesystem::path& in, const std::filesystem::path& out) {
+            model::Mesh m = read_msh(in);
+            strip_parametric(m);
+            write_mesh(m, out, MeshFormat::MshBinary);
+          }};
+}
+
 const ArtifactTypeRegistrar mesh_type({
     .type = "mesh",
     .extension = ".msh",
     .summary = "high-order hybrid mesh (stored as binary Gmsh MSH 4.1)",
     .formats = {{"msh", fmt(".msh", "Gmsh MSH 4.1 binary", MeshFormat::MshBinary)},
                 {"msh-ascii", fmt(".msh", "Gmsh MSH 4.1 ASCII", MeshFormat::MshAscii)},
+                {"msh-plain", plain_msh()},
                 {"vtu", fmt(".vtu", "VTK XML unstructured grid with Lagrange cells", MeshFormat::Vtu)},
                 {"nektar", fmt(".xml", "Nektar++ XML geometry", MeshFormat::Nektar)}},
     .summarize = [](const std::filesystem::path& p) { return model::mesh_stats(read_msh(p)); },
@@ -151,7 +172,7 @@ const ArtifactTypeRegistrar mesh_type({
 const CommandRegistrar quality_reg({"quality", "quality FILE [--json] [--threads N]",
                                     "validity (Bezier bounds of det J), scaled Jacobian, aspect ratio of a mesh",
                                     quality_cmd});
-const CommandRegistrar convert_reg({"convert", "convert IN OUT [--ascii]",
+const CommandRegistrar convert_reg({"convert", "convert IN OUT [--ascii] [--no-parametric]",
                                     "convert meshes between .msh (4.1; reads 2.2), .vtu and Nektar++ .xml", convert_cmd});
 
 }  // namespace

@@ -628,7 +628,8 @@ struct JacobianSpace {
       // (amplification x the rounding of the samples, scaled per element and per direction);
       // where that bound would exceed 14% of det J's scale the transform cannot certify
       // anything useful: hexahedra of order >= 5, proven by Bernstein arithmetic instead
-      // (hex_bezier_validity), prisms of order >= 6 (sampled); pyramids are always sampled.
+      // (hex_bezier_validity), prisms of order >= 6 (sampled); pyramids by Bernstein arithmetic in collapsed
+      // coordinates (pyramid_bezier_validity): their det J is not a polynomial in (x, y, z).
       auto rowsum = [](const Eigen::MatrixXd& A) { return A.cwiseAbs().rowwise().sum().maxCoeff(); };
       amplification = T.size() ? rowsum(T)
                       : s == Shape::Prism ? rowsum(Ta) * rowsum(Tb)
@@ -921,6 +922,44 @@ Tensor split(const Tensor& T, int ax, int half) {
       }
   return R;
 }
+// det J's Bernstein coefficients (and a bound of their rounding) from the scaled Bernstein
+// coefficients D[r][c] of dx_r/dxi_c and their bounds DE = |D| + rounding (hexes, pyramids);
+// every D[.][c] has the same degrees for a given c, each degree <= P.
+void det_from_columns(int P, const Tensor D[3][3], const Tensor DE[3][3], Tensor& det, double& err) {
+  constexpr double u = std::numeric_limits<double>::epsilon() / 2;
+  // det = x_xi (y_eta z_zeta - y_zeta z_eta) + x_eta (y_zeta z_xi - y_xi z_zeta) + x_zeta (y_xi z_eta - y_eta z_xi)
+  det = Tensor(D[0][0].n[0] + D[1][1].n[0] + D[2][2].n[0], D[0][0].n[1] + D[1][1].n[1] + D[2][2].n[1],
+               D[0][0].n[2] + D[1][1].n[2] + D[2][2].n[2]);
+  Tensor bound = det, bounde = det;
+  const int perm[3][3] = {{0, 1, 2}, {1, 2, 0}, {2, 0, 1}};  // (c0 ; c1, c2) of each term
+  for (auto& pc : perm) {
+    const int c0 = pc[0], c1 = pc[1], c2 = pc[2];
+    Tensor cof = convolve(D[1][c1], D[2][c2]);
+    axpy(cof, -1, convolve(D[1][c2], D[2][c1]));
+    Tensor cofa = convolve(absval(D[1][c1]), absval(D[2][c2]));
+    axpy(cofa, 1, convolve(absval(D[1][c2]), absval(D[2][c1])));
+    Tensor cofe = convolve(DE[1][c1], DE[2][c2]);
+    axpy(cofe, 1, convolve(DE[1][c2], DE[2][c1]));
+    axpy(det, 1, convolve(D[0][c0], cof));
+    axpy(bound, 1, convolve(absval(D[0][c0]), cofa));
+    axpy(bounde, 1, convolve(DE[0][c0], cofe));
+  }
+  scale_binomial(det, true);
+  scale_binomial(bound, true);
+  scale_binomial(bounde, true);
+  double bmax = 0, emax = 0;
+  for (std::size_t i = 0; i < bound.c.size(); ++i)
+    bmax = std::max(bmax, bounde.c[i]), emax = std::max(emax, bounde.c[i] - bound.c[i]);
+  // Rounding of the products and sums (each det coefficient: <= 6 (P+1)^6 rounded terms in
+  // <= 2 (P+1)^3 + 8 sequential operations, binomial scalings; `bound` is the same computation on
+  // absolute values, `bounde` on |D| + its rounding bound) plus the propagated rounding of the
+  // derivative coefficients: products of scaled coefficients have positive weights, so a
+  // coefficient of det moves by at most bounde - bound (multilinearity); de Casteljau splits
+  // (<= 3 x 6 levels of 3P-1 averaging steps) add their own rounding.
+  const double K = 2.0 * std::pow(P + 1, 3) + 16 + 18.0 * (3 * P - 1);
+  err = (1.01 * K * u * bmax + emax) * (1 + 8 * u);
+}
+
 // Bernstein coefficients of det J (and a bound of their rounding) of a hex of order P.
 void hex_det_bezier(int P, const double* X, Tensor& det, double& err) {
   // 1D equispaced Lagrange -> Bernstein of degree P (long double, rounded once)
@@ -1000,46 +1039,15 @@ void hex_det_bezier(int P, const double* X, Tensor& det, double& err) {
       D[r][c] = T;
       DE[r][c] = TE;
     }
-  // det = x_xi (y_eta z_zeta - y_zeta z_eta) + x_eta (y_zeta z_xi - y_xi z_zeta) + x_zeta (y_xi z_eta - y_eta z_xi)
-  det = Tensor(3 * P - 1, 3 * P - 1, 3 * P - 1);
-  Tensor bound = det, bounde = det;
-  const int perm[3][3] = {{0, 1, 2}, {1, 2, 0}, {2, 0, 1}};  // (c0 ; c1, c2) of each term
-  for (auto& pc : perm) {
-    const int c0 = pc[0], c1 = pc[1], c2 = pc[2];
-    Tensor cof = convolve(D[1][c1], D[2][c2]);
-    axpy(cof, -1, convolve(D[1][c2], D[2][c1]));
-    Tensor cofa = convolve(absval(D[1][c1]), absval(D[2][c2]));
-    axpy(cofa, 1, convolve(absval(D[1][c2]), absval(D[2][c1])));
-    Tensor cofe = convolve(DE[1][c1], DE[2][c2]);
-    axpy(cofe, 1, convolve(DE[1][c2], DE[2][c1]));
-    axpy(det, 1, convolve(D[0][c0], cof));
-    axpy(bound, 1, convolve(absval(D[0][c0]), cofa));
-    axpy(bounde, 1, convolve(DE[0][c0], cofe));
-  }
-  scale_binomial(det, true);
-  scale_binomial(bound, true);
-  scale_binomial(bounde, true);
-  double bmax = 0, emax = 0;
-  for (std::size_t i = 0; i < bound.c.size(); ++i)
-    bmax = std::max(bmax, bounde.c[i]), emax = std::max(emax, bounde.c[i] - bound.c[i]);
-  // Rounding of the products and sums (each det coefficient: <= 6 (P+1)^6 rounded terms in
-  // <= 2 (P+1)^3 + 8 sequential operations, binomial scalings; `bound` is the same computation on
-  // absolute values, `bounde` on |D| + its rounding bound) plus the propagated rounding of the
-  // derivative coefficients: products of scaled coefficients have positive weights, so a
-  // coefficient of det moves by at most bounde - bound (multilinearity); de Casteljau splits
-  // (<= 3 x 6 levels of 3P-1 averaging steps) add their own rounding.
-  const double K = 2.0 * std::pow(P + 1, 3) + 16 + 18.0 * (3 * P - 1);
-  err = (1.01 * K * u * bmax + emax) * (1 + 8 * u);
+  det_from_columns(P, D, DE, det, err);
 }
 // Proves validity of a hex by its det J coefficients, subdividing (de Casteljau) up to depth 6.
-void hex_bezier_validity(int P, const double* X, ElementQuality& q) {
-  Tensor det;
-  double err = 0;
-  hex_det_bezier(P, X, det, err);
+// Decides det > 0 on the box from its tensor Bernstein coefficients `det` (rounding bound err),
+// subdividing (de Casteljau) up to depth 6 (hexes, pyramids in collapsed coordinates).
+void tensor_bezier_validity(Tensor det, double err, ElementQuality& q) {
   std::deque<std::pair<Tensor, int>> todo;
   todo.push_back({std::move(det), 0});
   int visited = 0;
-  const int n = 3 * P - 1;
   while (!todo.empty()) {
     auto [T, depth] = std::move(todo.front());
     todo.pop_front();
@@ -1048,9 +1056,9 @@ void hex_bezier_validity(int P, const double* X, ElementQuality& q) {
       return;
     }
     // corner coefficients are values of det J: one <= 0 (beyond rounding) proves invalidity
-    for (int i : {0, n})
-      for (int j : {0, n})
-        for (int k : {0, n})
+    for (int i : {0, T.n[0]})
+      for (int j : {0, T.n[1]})
+        for (int k : {0, T.n[2]})
           if (T.at(i, j, k) < -err) {
             q.valid = false;
             return;
@@ -1069,6 +1077,185 @@ void hex_bezier_validity(int P, const double* X, ElementQuality& q) {
       }
     }
   }
+}
+
+// Proves validity of a hex by its det J coefficients.
+void hex_bezier_validity(int P, const double* X, ElementQuality& q) {
+  Tensor det;
+  double err = 0;
+  hex_det_bezier(P, X, det, err);
+  tensor_bezier_validity(std::move(det), err, q);
+}
+
+// ---- Pyramids: det J in Bernstein form in collapsed coordinates ----
+// The pyramid (base [-1,1]^2 at z = 0, apex (0,0,1)) is the image of the cube (a, b, c) in
+// [-1,1]^2 x [0,1] under the collapse x = (1-c) a, y = (1-c) b, z = c. Bergot's space (basis.hpp)
+// spanned by x'^i y'^j (1-z)^max(i,j) z^k, x' = x/(1-z) = a, becomes a^i b^j (1-c)^max(i,j) c^k:
+// polynomials of degree <= P in each of a, b, c. So the mapping composed with the collapse, Q(a,b,c),
+// has tensor Bernstein control points C = T X (T: nodes -> control points, fixed per order). With
+// Q_a = (1-c) x_x, Q_b = (1-c) x_y and Q_c = x_z - a x_x - b x_y (chain rule),
+//   det J(x, y, z) = det[Q_a / (1-c), Q_b / (1-c), Q_c],
+// where Q_a and Q_b are divisible by (1-c) exactly (every term with i >= 1 or j >= 1 carries it;
+// their top control layer c = 1 is the apex, constant in a and b): dividing a degree-n Bernstein
+// polynomial by (1-c) is g_r = n f_r / (n - r), exact up to one rounding. det J is then a
+// polynomial of degrees (3P-1, 3P-1, 3P-3) on the cube, its Bernstein coefficients formed by
+// Bernstein arithmetic as for hexes (det_from_columns) and decided by the same subdivision. The
+// whole closed pyramid is covered (the face c = 1 holds the limits of det J at the apex, which
+// depend on the direction: Bergot's space is rational there). This is the proof Gmsh's pyramids
+// lacked in our earlier sampling.
+struct PyramidControl {
+  std::vector<double> T;  // ((P+1)^3) x nodes, row (i*(P+1)+j)*(P+1)+k, row-major
+  std::vector<double> Tabs_rowsum;  // sum_n |T(row, n)| (rounding of applying T)
+  double rho = 0;         // bound of T's own error, relative to max |X_n - X_0| (see below)
+  int apex = -1;
+};
+
+const PyramidControl& pyramid_control(int P) {
+  static std::mutex mu;
+  static std::unique_ptr<PyramidControl> cache[kMaxOrder + 1];
+  std::lock_guard<std::mutex> lock(mu);
+  auto& slot = cache[P];
+  if (slot) return *slot;
+  auto pc = std::make_unique<PyramidControl>();
+  using MatL = Eigen::Matrix<LD, Eigen::Dynamic, Eigen::Dynamic>;
+  const auto& lat = lattice(Shape::Pyramid, P);
+  const int n = (int)lat.size(), m1 = P + 1, nc = m1 * m1 * m1;
+  // the space's exponents (i, j, k): k + max(i, j) <= P, as in basis.cpp
+  std::vector<std::array<int, 3>> ex;
+  for (int i = 0; i <= P; ++i)
+    for (int j = 0; j <= P; ++j)
+      for (int k = 0; k + std::max(i, j) <= P; ++k) ex.push_back({i, j, k});
+  // nodes in collapsed coordinates, exactly from their lattice indices (l2 = layer from the apex)
+  std::vector<std::array<LD, 3>> abc(n);
+  for (int q = 0; q < n; ++q) {
+    const auto& l = lat[q];
+    if (l[2] == 0) pc->apex = q;
+    abc[q] = {l[2] ? -1 + 2 * (LD)l[0] / l[2] : 0, l[2] ? -1 + 2 * (LD)l[1] / l[2] : 0, 1 - (LD)l[2] / P};
+  }
+  auto phi = [&](const std::array<int, 3>& e, const std::array<LD, 3>& x) {
+    const int mx = std::max(e[0], e[1]);
+    return std::pow(x[0], (LD)e[0]) * std::pow(x[1], (LD)e[1]) * std::pow(1 - x[2], (LD)mx) * std::pow(x[2], (LD)e[2]);
+  };
+  MatL V(n, (int)ex.size());
+  for (int q = 0; q < n; ++q)
+    for (int e = 0; e < (int)ex.size(); ++e) V(q, e) = q == pc->apex ? (std::max(ex[e][0], ex[e][1]) == 0 ? 1 : 0) : phi(ex[e], abc[q]);
+  MatL Vi = V.fullPivLu().inverse();  // N_q = sum_e phi_e Vi(e, q)
+  // degree-P Bernstein coefficients of a^i on [-1,1] (s = (a+1)/2: a^i = sum_l C(i,l) 2^l s^l (-1)^(i-l);
+  // s^l = sum_{r >= l} C(r,l)/C(P,l) B_r) and of (1-c)^mx c^k on [0,1] (C(P-mx-k, r-k) / C(P, r))
+  auto bin = [](int a, int b) -> LD { return b < 0 || b > a ? 0 : (LD)binom(a, b); };
+  auto mono_a = [&](int i, int r) {
+    LD s = 0;
+    for (int l = 0; l <= std::min(i, r); ++l) s += bin(i, l) * std::pow((LD)2, (LD)l) * ((i - l) % 2 ? -1 : 1) * bin(r, l) / bin(P, l);
+    return s;
+  };
+  auto mono_c = [&](int mx, int k, int r) { return r < k || r > P - mx ? (LD)0 : bin(P - mx - k, r - k) / bin(P, r); };
+  MatL Tl = MatL::Zero(nc, n);
+  for (int e = 0; e < (int)ex.size(); ++e) {
+    const int mx = std::max(ex[e][0], ex[e][1]);
+    for (int i = 0; i <= P; ++i) {
+      const LD fa = mono_a(ex[e][0], i);
+      if (fa == 0) continue;
+      for (int j = 0; j <= P; ++j) {
+        const LD fb = mono_a(ex[e][1], j);
+        if (fb == 0) continue;
+        for (int k = 0; k <= P; ++k) {
+          const LD fc = mono_c(mx, ex[e][2], k);
+          if (fc == 0) continue;
+          Tl.row((i * m1 + j) * m1 + k) += fa * fb * fc * Vi.row(e);
+        }
+      }
+    }
+  }
+  // the top layer c = 1 is the apex value, exactly
+  for (int i = 0; i <= P; ++i)
+    for (int j = 0; j <= P; ++j)
+      for (int q = 0; q < n; ++q) Tl((i * m1 + j) * m1 + P, q) = q == pc->apex ? 1 : 0;
+  // T's own error (long double inverse of the Vandermonde matrix): the computed polynomials
+  // interpolate the nodes up to residuals R = (values at the nodes) - I; as the error lies in the
+  // space, it is T R, so a control point of T X is off by at most ||T R|| max |X_q - X_0| (the
+  // constant is reproduced: sum_q T(row, q) = 1, so differences from X_0 can be used).
+  auto bern = [&](int d, int r, LD t) { return bin(d, r) * std::pow(t, (LD)r) * std::pow(1 - t, (LD)(d - r)); };
+  MatL B(n, nc);  // the tensor Bernstein basis at the nodes
+  for (int q = 0; q < n; ++q) {
+    const LD s = q == pc->apex ? 0.5 : (abc[q][0] + 1) / 2, t = q == pc->apex ? 0.5 : (abc[q][1] + 1) / 2, w = abc[q][2];
+    for (int i = 0; i <= P; ++i)
+      for (int j = 0; j <= P; ++j)
+        for (int k = 0; k <= P; ++k) B(q, (i * m1 + j) * m1 + k) = bern(P, i, s) * bern(P, j, t) * bern(P, k, w);
+  }
+  MatL R = B * Tl - MatL::Identity(n, n);
+  MatL TR = Tl * R;
+  LD rho = 0;
+  for (int row = 0; row < nc; ++row) rho = std::max(rho, TR.row(row).cwiseAbs().sum());
+  // (plus the rounding of R's and T R's own long double sums: <= (nc + n) eps_ld ||T||_inf each)
+  LD normT = 0;
+  for (int row = 0; row < nc; ++row) normT = std::max(normT, Tl.row(row).cwiseAbs().sum());
+  pc->rho = (double)(1.01L * rho + 4 * (nc + n) * std::numeric_limits<LD>::epsilon() * normT * (1 + normT));
+  pc->T.resize(std::size_t(nc) * n);
+  pc->Tabs_rowsum.assign(nc, 0);
+  for (int row = 0; row < nc; ++row)
+    for (int q = 0; q < n; ++q) {
+      pc->T[std::size_t(row) * n + q] = (double)Tl(row, q);
+      pc->Tabs_rowsum[row] += std::abs((double)Tl(row, q));
+    }
+  slot = std::move(pc);
+  return *slot;
+}
+
+// Bernstein coefficients of det J (and a bound of their rounding) of a pyramid of order P, on the
+// cube of collapsed coordinates (s, t, c) = ((a+1)/2, (b+1)/2, c) in [0,1]^3.
+void pyramid_det_bezier(int P, const double* X, Tensor& det, double& err) {
+  const PyramidControl& pc = pyramid_control(P);
+  const int n = num_nodes(Shape::Pyramid, P), m1 = P + 1;
+  constexpr double u = std::numeric_limits<double>::epsilon() / 2;
+  Tensor D[3][3], DE[3][3];
+  for (int r = 0; r < 3; ++r) {
+    // control points of x_r - x_r(node 0) and a bound of their error
+    std::vector<double> Xd(n);
+    double xmax = 0;
+    for (int q = 0; q < n; ++q) Xd[q] = X[3 * q + r] - X[r], xmax = std::max(xmax, std::abs(Xd[q]));
+    Tensor C(P, P, P), CE(P, P, P);
+    for (int row = 0; row < m1 * m1 * m1; ++row) {
+      const double* t = &pc.T[std::size_t(row) * n];
+      double sum = 0, suma = 0;
+      for (int q = 0; q < n; ++q) sum += t[q] * Xd[q], suma += std::abs(t[q] * Xd[q]);
+      C.c[row] = sum;
+      // rounding of the differences (one each) and of the sum of n products, plus T's own error
+      CE.c[row] = 1.01 * (n + 2) * u * (suma + pc.Tabs_rowsum[row] * xmax) + pc.rho * xmax;
+    }
+    for (int c = 0; c < 3; ++c) {
+      // derivative along axis c (d/da = P/2 differences on [-1,1]; d/dc = P differences on [0,1]),
+      // then for c = 0, 1 division by (1 - c): degree P-1 in the collapsed axis, P-1 along the axis
+      Tensor T(c == 0 ? P - 1 : P, c == 1 ? P - 1 : P, P - 1), TE = T;
+      const double f = c < 2 ? 0.5 * P : (double)P;
+      for (int i = 0; i <= T.n[0]; ++i)
+        for (int j = 0; j <= T.n[1]; ++j)
+          for (int k = 0; k <= T.n[2]; ++k) {
+            const int i1 = i + (c == 0), j1 = j + (c == 1), k1 = k + (c == 2);
+            double v = f * (C.at(i1, j1, k1) - C.at(i, j, k));
+            double e = f * (CE.at(i1, j1, k1) + CE.at(i, j, k)) * (1 + 4 * u) + 2 * u * std::abs(v);
+            if (c < 2) {  // g_k = P f_k / (P - k); the dropped top layer f_P is 0 exactly (the apex)
+              const double w = double(P) / (P - k);
+              v *= w;
+              e = e * w * (1 + 2 * u) + u * std::abs(v);
+            }
+            T.at(i, j, k) = v;
+            TE.at(i, j, k) = std::abs(v) + e;
+          }
+      scale_binomial(T, false);
+      scale_binomial(TE, false);
+      D[r][c] = std::move(T);
+      DE[r][c] = std::move(TE);
+    }
+  }
+  det_from_columns(P, D, DE, det, err);
+}
+
+// Proves validity of a pyramid by its det J coefficients in collapsed coordinates.
+void pyramid_bezier_validity(int P, const double* X, ElementQuality& q) {
+  Tensor det;
+  double err = 0;
+  pyramid_det_bezier(P, X, det, err);
+  tensor_bezier_validity(std::move(det), err, q);
 }
 
 // ---- Tets: the perturbation proof (the fast path of the validity check) ----
@@ -1152,7 +1339,9 @@ void classify(const JacobianSpace& sp, const double* X, const double* normal, co
     q.valid = q.min_det > 0;
   } else if (!sp.bezier && sp.shape == Shape::Hex && q.min_det > 0) {
     hex_bezier_validity(sp.order, X, q);  // Bernstein arithmetic (proof), see above
-  } else if (!sp.bezier && sp.shape == Shape::Hex) {
+  } else if (!sp.bezier && sp.shape == Shape::Pyramid && q.min_det > 0) {
+    pyramid_bezier_validity(sp.order, X, q);  // collapsed coordinates (proof), see above
+  } else if (!sp.bezier && (sp.shape == Shape::Hex || sp.shape == Shape::Pyramid)) {
     q.valid = false;  // a sample with det J <= 0
   } else if (!sp.bezier) {
     q.sampled = true;
@@ -1411,14 +1600,16 @@ nlohmann::json mesh_stats(const Mesh& m, int threads) {
   j["min_scaled_jacobian"] = mn;
   j["median_scaled_jacobian"] = med;
   j["max_aspect_ratio"] = total ? max_ar : 1.0;
-  std::size_t sampled_pyr = 0;
+  // proven (Bezier bounds) for every element but those sampled (prisms of order >= 6), by shape
+  std::map<std::string, std::size_t> sampled_by;
   for (size_t bi = 0; bi < m.blocks.size(); ++bi)
-    if (m.blocks[bi].shape == Shape::Pyramid) sampled_pyr += q[bi].size();
-  // proven (Bezier bounds): every shape but the pyramid; sampled: pyramids
+    for (const auto& eq : q[bi])
+      if (eq.sampled) ++sampled_by[shape_name(m.blocks[bi].shape)];
+  std::string which;
+  for (auto& [name, count] : sampled_by) which += (which.empty() ? "" : ", ") + std::to_string(count) + " " + name + "s";
   j["validity_method"] =
       sampled ? "bezier (proven) for " + std::to_string(total - sampled) + " elements; sampling (not proven) for " +
-                    std::to_string(sampled) + " elements: " + std::to_string(sampled_pyr) + " pyramids (rational space)" +
-                    (sampled > sampled_pyr ? ", " + std::to_string(sampled - sampled_pyr) + " others" : std::string())
+                    std::to_string(sampled) + " elements: " + which
               : std::string("bezier (proven for every element)");
   j["sampled"] = sampled;
   sj_edges.back() = 1.0;

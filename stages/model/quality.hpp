@@ -37,13 +37,16 @@
 // in Bernstein form, products by convolution of scaled coefficients (positive weights), rounding
 // bounded by the same computation on absolute values plus the propagated rounding of the
 // control points; subdivision by de Casteljau. Prisms of order >= 6 (amplification 2e11) are
-// sampled (reported in "sampled", not proven).
-// Pyramids (sampling): Gmsh's pyramidal space is rational, so det J is not a polynomial; we
-// sample det J at the equispaced pyramid lattice of order 3P+2 (apex excluded). A pyramid
-// valid at all samples but invalid between them can be missed. (Not done: the proof Gmsh
-// uses. In the collapsed coordinates x' = x/(1-z), y' = y/(1-z) the pyramid is the unit cube
-// and det J = (1-z)^-k q(x', y', z) with q a polynomial; q's tensor Bernstein coefficients on the
-// cube, with the rounding bound above, would prove validity like for hexes.)
+// sampled (reported in "sampled", not proven). Pyramids: see below.
+// Pyramids (proven, Bernstein arithmetic in collapsed coordinates): Gmsh's pyramidal space
+// (Bergot) is rational, so det J is not a polynomial in (x, y, z); but in the collapsed
+// coordinates a = x/(1-z), b = y/(1-z), c = z the pyramid is the cube [-1,1]^2 x [0,1], the
+// mapping is a polynomial of degree P in each of a, b, c, and det J = det[Q_a/(1-c), Q_b/(1-c), Q_c]
+// is a polynomial of degrees (3P-1, 3P-1, 3P-3) whose tensor Bernstein coefficients come from the
+// mapping's control points as for high-order hexes, with the same rounding bounds and de Casteljau
+// subdivision. The face c = 1 holds det J's limits at the apex (direction-dependent), so the
+// whole closed pyramid is decided. Their scaled Jacobian is over the samples of the pyramid
+// lattice of order 3P+2 (apex excluded).
 // Scaled Jacobian: min det J / max det J over the samples (the Bezier lattice points and
 // those of the subdivisions, when the element needed subdividing). <= 0 for invalid elements.
 // Aspect ratio: longest / shortest straight vertex-to-vertex edge of the element (for a thin
@@ -67,7 +70,7 @@ struct ElementQuality {
   double aspect_ratio = 1;
   bool valid = true;
   bool inconclusive = false;  // Bezier bounds inconclusive at the maximum depth
-  bool sampled = false;       // method "sampling" (pyramids)
+  bool sampled = false;       // method "sampling" (not proven: prisms of order >= 6)
 };
 
 // Quality of one element; X = 3*num_nodes(s, order) coordinates (Gmsh node order).

@@ -13,6 +13,7 @@
 #include <unistd.h>
 
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <set>
@@ -628,4 +629,58 @@ TEST_CASE("Gmsh-made meshes of every 3D type (shared/data/highorder) survive msh
       CHECK(b["bbox"][k].get<double>() == doctest::Approx(a["bbox"][k].get<double>()).epsilon(1e-11));
     CHECK(b["min_scaled_jacobian"].get<double>() == doctest::Approx(a["min_scaled_jacobian"].get<double>()).epsilon(1e-9));
   }
+}
+
+TEST_CASE("MSH with parametric node coordinates: Gmsh reads ours, meshio 5 reads the msh-plain export and convert --no-parametric") {
+  // A Gmsh-made order-2 mesh of a sphere in a box with Mesh.SaveParametric: nodes on the sphere
+  // and on the box's curves carry (u, v) / u. We keep them through read and write (Gmsh reads our
+  // file back with the same counts and parameters); meshio 5 refuses parametric node blocks
+  // ("parametric nodes not implemented"), so the artifact type has the msh-plain format and
+  // convert has --no-parametric, and meshio reads those with the same counts.
+  auto src = tmpdir() / "param_src.msh";
+  python("import gmsh\ngmsh.initialize()\ngmsh.option.setNumber('General.Terminal',0)\n"
+         "gmsh.model.occ.addBox(-1,-1,-1,2,2,2,1)\ngmsh.model.occ.addSphere(0,0,0,0.5,2)\n"
+         "gmsh.model.occ.cut([(3,1)],[(3,2)])\ngmsh.model.occ.synchronize()\n"
+         "gmsh.option.setNumber('Mesh.MeshSizeMax',0.4)\ngmsh.model.mesh.generate(3)\ngmsh.model.mesh.setOrder(2)\n"
+         "gmsh.option.setNumber('Mesh.SaveParametric',1)\ngmsh.option.setNumber('Mesh.Binary',1)\n"
+         "gmsh.write('" + src.string() + "')\n");
+  Mesh m = io::read_mesh(src);
+  REQUIRE(m.has_parametric());
+  std::size_t with_uv = 0;
+  double uv_sum = 0;  // what Gmsh must read back from our file: sum of |u| + |v| over surface nodes
+  for (std::size_t i = 0; i < m.num_nodes(); ++i)
+    if (!m.node_entity_dim.empty() && m.node_entity_dim[i] == 2 && std::isfinite(m.node_v[i]))
+      ++with_uv, uv_sum += std::abs(m.node_u[i]) + std::abs(m.node_v[i]);
+  CHECK(with_uv > 50);
+  char uv_text[64];
+  std::snprintf(uv_text, sizeof uv_text, "%.9g", uv_sum);
+  auto ours = tmpdir() / "param_ours.msh";
+  io::write_msh(m, ours);
+  const ArtifactType* t = find_artifact_type("mesh");
+  REQUIRE(t);
+  REQUIRE(t->formats.count("msh-plain") == 1);
+  auto plain = tmpdir() / "param_plain.msh";
+  t->formats.at("msh-plain").write(ours, plain);
+  auto conv = tmpdir() / "param_conv.msh";
+  CHECK(run_cmd("convert", {ours.string(), conv.string(), "--no-parametric"}) == 0);
+  CHECK_FALSE(io::read_mesh(plain).has_parametric());
+  std::string script = "import gmsh, meshio\ngmsh.initialize()\ngmsh.option.setNumber('General.Terminal',0)\n";
+  for (auto& f : {ours, plain, conv})
+    script += "gmsh.clear()\ngmsh.open('" + f.string() + "')\nnt,_,p=gmsh.model.mesh.getNodes(2,-1,False,True)\n"
+              "_,tags,_=gmsh.model.mesh.getElements()\nnall,_,_=gmsh.model.mesh.getNodes()\n"
+              "print('gmsh', len(nall), sum(len(x) for x in tags), '%.9g' % sum(abs(x) for x in p))\n"
+              "try:\n  mm=meshio.gmsh.read('" + f.string() + "')\n  print('meshio', len(mm.points), sum(len(c.data) for c in mm.cells))\n"
+              "except meshio.ReadError as e:\n  print('meshio-refused', 'parametric' in str(e))\n";
+  std::istringstream out(python(script));
+  std::vector<std::string> lines;
+  for (std::string line; std::getline(out, line);)
+    if (line.rfind("gmsh ", 0) == 0 || line.rfind("meshio", 0) == 0) lines.push_back(line);
+  const std::string counts = std::to_string(m.num_nodes()) + " " + std::to_string(m.num_elements());
+  REQUIRE(lines.size() == 6);
+  CHECK(lines[0] == "gmsh " + counts + " " + uv_text);  // ours: Gmsh reads the surface nodes' (u, v)
+  CHECK(lines[1] == "meshio-refused True");              // meshio 5's own limit
+  CHECK(lines[2] == "gmsh " + counts + " 0");            // plain: no parameters
+  CHECK(lines[3] == "meshio " + counts);
+  CHECK(lines[4] == "gmsh " + counts + " 0");
+  CHECK(lines[5] == "meshio " + counts);
 }

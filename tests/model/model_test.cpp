@@ -439,3 +439,101 @@ TEST_CASE("tets: the perturbation proof gives the same verdicts as the Bezier pa
     CHECK(invalid > 10);
   }
 }
+
+namespace {
+// min det J of a pyramid over an (F+1)^3 grid of collapsed coordinates (a, b, c) in
+// [-1,1]^2 x [0, 1 - 1e-3]: x = (1-c) a, y = (1-c) b, z = c (Gmsh's reference pyramid)
+double pyramid_grid_min(const LagrangeBasis& b, const std::vector<double>& X, int F) {
+  double mn = 1e300, J[9];
+  for (int i = 0; i <= F; ++i)
+    for (int j = 0; j <= F; ++j)
+      for (int k = 0; k <= F; ++k) {
+        const double a = -1 + 2. * i / F, bb = -1 + 2. * j / F, c = (1 - 1e-3) * k / F;
+        jacobian(b, X.data(), {(1 - c) * a, (1 - c) * bb, c}, J);
+        mn = std::min(mn, jacobian_determinant(3, J, nullptr));
+      }
+  return mn;
+}
+}  // namespace
+
+TEST_CASE("pyramids: validity is proven by Bernstein coefficients in collapsed coordinates, P=1..6, and sound") {
+  // Gmsh's (Bergot's) pyramid space is rational, so det J is no polynomial in (x, y, z); in
+  // collapsed coordinates it is (quality.hpp). Randomly perturbed pyramids: one we call valid
+  // is proven (not sampled, not inconclusive) and has det J > 0 on a fine grid; one we call
+  // invalid has det J < 0 somewhere on a fine grid or at a sample; both verdicts occur.
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> U(-1, 1);
+  for (int p = 1; p <= 6; ++p) {
+    const LagrangeBasis& b = LagrangeBasis::get(Shape::Pyramid, p);
+    int proven = 0, invalid = 0;
+    for (int trial = 0; trial < 8; ++trial) {
+      auto X = straight(Shape::Pyramid, p, 1.5, 1, 0.7);
+      const double amp = (0.05 + 0.12 * (trial % 4)) * (p == 1 ? 3 : 1);
+      for (size_t i = 0; i < X.size(); ++i) X[i] += amp * U(rng) / p;
+      auto q = element_quality(Shape::Pyramid, p, X.data());
+      INFO("P=" << p << " trial " << trial);
+      CHECK_FALSE(q.sampled);
+      CHECK_FALSE(q.inconclusive);
+      const double mn = pyramid_grid_min(b, X, p <= 4 ? 16 : 10);
+      if (q.valid) {
+        ++proven;
+        CHECK(mn > 0);
+      } else {
+        ++invalid;
+        CHECK((mn <= 0 || q.min_det <= 0));
+      }
+    }
+    INFO("P=" << p << ": proven " << proven << ", invalid " << invalid);
+    CHECK(proven > 0);
+    CHECK(invalid > 0);
+  }
+}
+
+TEST_CASE("pyramids: a P=4 pyramid valid at every sample of the order-14 lattice but invalid between is found") {
+  // One high-order node pushed by t along a direction: as t grows, det J first turns negative
+  // somewhere (t*). The Bernstein check must flip at t* (never later); the samples of the
+  // pyramid lattice of order 3P+2 (what meshflow used to rely on) flip later where the negative
+  // region starts between them. Search nodes and directions for such a gap, then check at a t
+  // inside it that the samples are positive, a dense grid finds det J < 0, and we say invalid.
+  const int P = 4;
+  const LagrangeBasis& b = LagrangeBasis::get(Shape::Pyramid, P);
+  const auto X0 = straight(Shape::Pyramid, P, 1, 1, 1);
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> U(-1, 1);
+  auto flip = [&](auto&& invalid_at, double hi) {  // smallest t in (0, hi] with invalid_at(t)
+    double lo = 0;
+    if (!invalid_at(hi)) return -1.0;
+    for (int it = 0; it < 40; ++it) {
+      const double mid = (lo + hi) / 2;
+      (invalid_at(mid) ? hi : lo) = mid;
+    }
+    return hi;
+  };
+  int found = 0;
+  for (int trial = 0; trial < 60 && found < 2; ++trial) {
+    const int node = 5 + trial % (num_nodes(Shape::Pyramid, P) - 5);  // not a vertex
+    double d[3] = {U(rng), U(rng), U(rng)};
+    auto moved = [&](double t) {
+      auto X = X0;
+      for (int r = 0; r < 3; ++r) X[3 * node + r] += t * d[r];
+      return X;
+    };
+    const double t_bez = flip([&](double t) { return !element_quality(Shape::Pyramid, P, moved(t).data()).valid; }, 3.0);
+    const double t_smp = flip([&](double t) { return element_quality(Shape::Pyramid, P, moved(t).data()).min_det <= 0; }, 3.0);
+    if (t_bez < 0) continue;
+    INFO("node " << node << " t_bezier " << t_bez << " t_samples " << t_smp);
+    REQUIRE(t_smp > 0);
+    CHECK(t_bez <= t_smp * (1 + 1e-9));  // sound: never valid where a sample is negative
+    if (t_smp - t_bez < 0.02 * t_smp) continue;
+    const double t = t_bez + 0.5 * (t_smp - t_bez);
+    auto X = moved(t);
+    auto q = element_quality(Shape::Pyramid, P, X.data());
+    const double dense = pyramid_grid_min(b, X, 48);
+    INFO("at t " << t << ": min det at the samples " << q.min_det << ", on the dense grid " << dense);
+    CHECK(q.min_det > 0);
+    CHECK_FALSE(q.valid);
+    CHECK(dense < 0);
+    ++found;
+  }
+  CHECK(found >= 1);
+}
