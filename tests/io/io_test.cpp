@@ -16,6 +16,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <set>
 #include <sstream>
 
@@ -582,6 +583,43 @@ TEST_CASE("bad input: clear errors naming the file and line/offset, commands exi
   }
   auto cut = write("bincut.msh", full.substr(0, full.size() * 2 / 3));
   CHECK_THROWS_WITH_AS(io::read_mesh(cut), doctest::Contains("byte offset"), io::MeshIOError);
+  // binary blocks are read in bulk: a NaN coordinate and an element node tag that is not in
+  // $Nodes still name the exact byte offset of the bad value
+  {
+    Mesh lin;
+    std::uint32_t v[4];
+    const double xs[4][3] = {{12345.678, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+    for (int i = 0; i < 4; ++i) v[i] = lin.add_node(xs[i][0], xs[i][1], xs[i][2]);
+    lin.add_physical(3, 7, "fluid");
+    lin.add_entity(3, 1, {7});
+    lin.block(Shape::Tet, 1, 3, 1).add(v);
+    auto g = tmpdir() / "binlin.msh";
+    io::write_msh(lin, g, true);
+    std::string bytes;
+    {
+      std::ifstream in(g, std::ios::binary);
+      bytes.assign(std::istreambuf_iterator<char>(in), {});
+    }
+    auto pack = [](auto value) { return std::string(reinterpret_cast<const char*>(&value), sizeof value); };
+    const std::size_t at_x = bytes.find(pack(12345.678), bytes.find("$Nodes"));  // (not the entity box)
+    REQUIRE(at_x != std::string::npos);
+    std::string nan_bytes = bytes;
+    nan_bytes.replace(at_x, 8, pack(std::numeric_limits<double>::quiet_NaN()));
+    auto fn = write("binnan.msh", nan_bytes);
+    CHECK_THROWS_WITH_AS(io::read_mesh(fn), doctest::Contains("non-finite coordinate"), io::MeshIOError);
+    const std::string off_x = "byte offset " + std::to_string(at_x) + ":";
+    CHECK_THROWS_WITH_AS(io::read_mesh(fn), doctest::Contains(off_x.c_str()), io::MeshIOError);
+    const std::string rec = pack(std::uint64_t(1)) + pack(std::uint64_t(1)) + pack(std::uint64_t(2)) +
+                            pack(std::uint64_t(3)) + pack(std::uint64_t(4));
+    const std::size_t at_e = bytes.find(rec, bytes.find("$Elements"));
+    REQUIRE(at_e != std::string::npos);
+    std::string range_bytes = bytes;
+    range_bytes.replace(at_e + 16, 8, pack(std::uint64_t(999)));
+    auto fr = write("binrange.msh", range_bytes);
+    CHECK_THROWS_WITH_AS(io::read_mesh(fr), doctest::Contains("refers to node 999"), io::MeshIOError);
+    const std::string off_e = "byte offset " + std::to_string(at_e + 16) + ":";
+    CHECK_THROWS_WITH_AS(io::read_mesh(fr), doctest::Contains(off_e.c_str()), io::MeshIOError);
+  }
   CHECK(run_cmd("quality", {}) == 2);
 }
 
