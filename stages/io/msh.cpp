@@ -123,6 +123,7 @@ Mesh read_msh4(Cursor& c, bool binary, const std::string& path) {
       if (nnodes > (1ull << 32) - 2) c.fail("too many nodes", binary);
       const size_t reserve = std::min<std::uint64_t>(nnodes, c.data().size() / 8 + 1);
       m.x.reserve(reserve), m.y.reserve(reserve), m.z.reserve(reserve);
+      m.node_entity_dim.reserve(reserve), m.node_entity_tag.reserve(reserve);
       node_tags.reserve(reserve);
       bool any_param = false;
       for (std::uint64_t b = 0; b < nblocks; ++b) {
@@ -136,32 +137,37 @@ Mesh read_msh4(Cursor& c, bool binary, const std::string& path) {
                      " declared in the $Nodes header", binary);
         size_t first = node_tags.size();
         const int npar = param ? dim : 0;
-        if (binary && c.has(n * 8 * (4 + npar)) && !param) {
-          // fast path (the whole block is there): tags, then x y z per node, copied in bulk
+        if (param && !any_param) {
+          any_param = true;
+          m.node_u.reserve(reserve), m.node_v.reserve(reserve);
+          m.node_u.assign(first, NAN);
+          m.node_v.assign(first, NAN);
+        }
+        if (binary && c.has(n * 8 * (4 + npar))) {
+          // fast path (the whole block is there): tags, then x y z (u v) per node, copied in bulk
           node_tags.resize(first + n);
           std::memcpy(node_tags.data() + first, c.at(), n * 8);
           c.skip(n * 8);
           const char* p = c.at();
-          for (std::uint64_t i = 0; i < n; ++i, p += 24) {
-            double v[3];
-            std::memcpy(v, p, 24);
+          const size_t rec = 8 * (3 + npar);
+          for (std::uint64_t i = 0; i < n; ++i, p += rec) {
+            double v[6] = {0, 0, 0, NAN, NAN, NAN};
+            std::memcpy(v, p, rec);
             if (!std::isfinite(v[0]) || !std::isfinite(v[1]) || !std::isfinite(v[2]))
               c.fail("node " + std::to_string(node_tags[first + i]) + " has a non-finite coordinate", binary,
-                     c.pos() + 24 * i);
+                     c.pos() + rec * i);
             m.x.push_back(v[0]), m.y.push_back(v[1]), m.z.push_back(v[2]);
-            if (any_param) m.node_u.push_back(NAN), m.node_v.push_back(NAN);
+            if (any_param) {
+              m.node_u.push_back(npar >= 1 && dim <= 2 ? v[3] : NAN);
+              m.node_v.push_back(npar >= 2 && dim <= 2 ? v[4] : NAN);
+            }
           }
-          c.skip(n * 24);
+          c.skip(n * rec);
           m.node_entity_dim.insert(m.node_entity_dim.end(), n, dim);
           m.node_entity_tag.insert(m.node_entity_tag.end(), n, tag);
           continue;
         }
         for (std::uint64_t i = 0; i < n; ++i) node_tags.push_back(S("node tag"));
-        if (param && !any_param) {
-          any_param = true;
-          m.node_u.assign(first, NAN);
-          m.node_v.assign(first, NAN);
-        }
         for (std::uint64_t i = 0; i < n; ++i) {
           size_t at = c.pos();
           double p[6] = {0, 0, 0, NAN, NAN, NAN};
@@ -498,8 +504,8 @@ void classify_nodes(Mesh& m) {
 }
 
 Mesh read_msh(const std::filesystem::path& path) {
-  const std::string data = detail::slurp(path);
-  Cursor c(path.string(), data);
+  const detail::FileBytes data(path);
+  Cursor c(path.string(), data.view());
   c.skip_ws();
   if (c.eof()) c.fail("empty file (not a Gmsh MSH file)");
   std::string head = c.line();
