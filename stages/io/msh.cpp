@@ -17,6 +17,8 @@
 #include <set>
 #include <tuple>
 
+#include <sys/mman.h>
+
 namespace meshflow::io {
 
 using namespace model;
@@ -29,8 +31,16 @@ struct TagIndex {
   std::vector<std::uint32_t> dense;
   std::vector<std::pair<std::uint64_t, std::uint32_t>> sparse;
   bool use_dense = true;
+  // tags 1..n in order (what meshflow and Gmsh usually write): the index is tag - 1, with no
+  // table (a lookup in a table of 11M nodes is a cache miss per element node)
+  bool identity = false;
+  std::uint64_t count = 0;
   static constexpr std::uint32_t kNone = 0xffffffffu;
   void build(const std::vector<std::uint64_t>& tags, std::uint64_t max_tag) {
+    count = tags.size();
+    identity = true;
+    for (std::size_t i = 0; i < tags.size() && identity; ++i) identity = tags[i] == i + 1;
+    if (identity) return;
     use_dense = max_tag <= 4 * tags.size() + 1024;
     if (use_dense) {
       dense.assign(max_tag + 1, kNone);
@@ -41,11 +51,24 @@ struct TagIndex {
     }
   }
   std::uint32_t find(std::uint64_t t) const {
+    if (identity) return t >= 1 && t <= count ? static_cast<std::uint32_t>(t - 1) : kNone;
     if (use_dense) return t < dense.size() ? dense[t] : kNone;
     auto it = std::lower_bound(sparse.begin(), sparse.end(), std::make_pair(t, std::uint32_t(0)));
     return it != sparse.end() && it->first == t ? it->second : kNone;
   }
 };
+
+// Asks for transparent huge pages on a large freshly reserved array (a hint; no effect where
+// THP is off). A big mesh's arrays are touched for the first time while reading; on this kind
+// of virtual machine each 4 KiB page fault is costly, and a 700 MB mesh takes ~170k of them.
+template <class V>
+void hint_huge_pages(V& v) {
+  constexpr std::uintptr_t kHuge = std::uintptr_t(2) << 20;
+  const std::uintptr_t b = reinterpret_cast<std::uintptr_t>(v.data());
+  const std::uintptr_t e = b + v.capacity() * sizeof(typename V::value_type);
+  const std::uintptr_t b2 = (b + kHuge - 1) & ~(kHuge - 1), e2 = e & ~(kHuge - 1);
+  if (e2 > b2) ::madvise(reinterpret_cast<void*>(b2), e2 - b2, MADV_HUGEPAGE);
+}
 
 void finish_tags(Mesh& m, std::vector<std::uint64_t>& node_tags) {
   bool trivial = true;
@@ -125,6 +148,8 @@ Mesh read_msh4(Cursor& c, bool binary, const std::string& path) {
       m.x.reserve(reserve), m.y.reserve(reserve), m.z.reserve(reserve);
       m.node_entity_dim.reserve(reserve), m.node_entity_tag.reserve(reserve);
       node_tags.reserve(reserve);
+      hint_huge_pages(m.x), hint_huge_pages(m.y), hint_huge_pages(m.z), hint_huge_pages(node_tags);
+      hint_huge_pages(m.node_entity_dim), hint_huge_pages(m.node_entity_tag);
       bool any_param = false;
       for (std::uint64_t b = 0; b < nblocks; ++b) {
         int dim = static_cast<int>(I("entity dimension"));
@@ -140,6 +165,7 @@ Mesh read_msh4(Cursor& c, bool binary, const std::string& path) {
         if (param && !any_param) {
           any_param = true;
           m.node_u.reserve(reserve), m.node_v.reserve(reserve);
+          hint_huge_pages(m.node_u), hint_huge_pages(m.node_v);
           m.node_u.assign(first, NAN);
           m.node_v.assign(first, NAN);
         }
@@ -218,6 +244,7 @@ Mesh read_msh4(Cursor& c, bool binary, const std::string& path) {
         if (n > c.data().size()) c.fail("implausible element count " + std::to_string(n) + " (truncated file?)", binary);
         blk.nodes.reserve(n * npe);
         blk.tags.reserve(n);
+        hint_huge_pages(blk.nodes), hint_huge_pages(blk.tags);
         if (binary && c.has(n * 8 * (1 + npe))) {
           // fast path (the whole block is there): tag and node tags per element, no check per value
           const char* p = c.at();
