@@ -1442,6 +1442,31 @@ void Builder::volume() {
     }
     log("invalid prisms before untangle: " + std::to_string(bad) + " of " + std::to_string(P.size()));
   }
+  // A wall triangle two of whose nodes are swept to one shell node has a collapsed edge, which no
+  // node move repairs: the two strip corners PA and PB of a junction's end cross-section lying on
+  // a third face that is no partner of that junction (sweep.hpp, KNOWN LIMITATION; DLR-F6's pylon
+  // nose on the nacelle). Named here instead of as an inverted prism after untangling.
+  for (std::size_t i = 0; i < P.size(); ++i) {
+    int a = -1, b = -1;
+    for (int p = 0; p < 3 && a < 0; ++p)
+      for (int q = p + 1; q < 3; ++q)
+        if (P[i][3 + p] == P[i][3 + q]) a = p, b = q;
+    if (a < 0) continue;
+    std::string junction = "a junction's end cross-section";
+    for (auto& j : J)
+      if (std::find(j.pc.begin(), j.pc.end(), P[i][3 + a]) != j.pc.end()) {
+        junction = "the end cross-section of the junction along edge " + std::to_string(j.edge) + " (faces " + std::to_string(j.A) +
+                   " and " + std::to_string(j.B) + ")";
+        break;
+      }
+    V3 c = mul(add(add(X(P[i][0]), X(P[i][1])), X(P[i][2])), 1.0 / 3);
+    throw StageError("sweep: the prism on wall face " + std::to_string(pface[i]) + " at " + fmt(c) +
+                     " collapses: its wall nodes at " + fmt(X(P[i][a])) + " and " + fmt(X(P[i][b])) + " are both corners of " + junction +
+                     ", swept to one shell node, because that junction ends on face " + std::to_string(pface[i]) +
+                     ", which is not one of its faces. Make the edges of face " + std::to_string(pface[i]) +
+                     " at that end junctions too (raise shell.junction_angle_deg if they are concave, or add the tag of its "
+                     "neighbour to shell.junction_with) or use shell.topology O");
+  }
   untangle(P);
   if (std::getenv("MESHFLOW_SWEEP_DEBUG")) {
     int bad = 0;

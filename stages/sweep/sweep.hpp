@@ -59,8 +59,9 @@
 // boundary, V keeps its own vertex image, and the hex's end face (V, PA, PC, PB) is not a face of
 // F's prisms: it bounds a thin pocket against their side faces (V, PA | PC, img V) and
 // (V, PB | PC, img V). tet puts a pyramid on that exposed quad, whose apex pokes through those
-// prisms (TetGen: intersecting facets, then signal 11), and in DLR-F6 the prisms of F there
-// invert. A fix needs F's layer to close onto the end face (F's corner triangle (V, PA, PB) swept
+// prisms (TetGen: intersecting facets, then signal 11). Where F is small (DLR-F6's pylon nose,
+// 11 mm) one of its triangles has both PA and PB, whose prism collapses (both swept to PC): sweep
+// refuses that, naming the junction and F, before untangling. A fix needs F's layer to close onto the end face (F's corner triangle (V, PA, PB) swept
 // to the end face, or the end cross-section laid on F); junction_angle_deg 170 makes DLR-F6's
 // pylon-nose edges junctions, which closes that loop but not the others.
 // Wall nodes are swept to their shell images by the shell's fields (vertex value, edge field,
