@@ -49,6 +49,16 @@
 // that share a face (Dijkstra), g = `max_gradient`: the thickness is g-Lipschitz along the
 // walls (no steps). At any wall point x (grid node, edge station) t(x) = min_j (t_j + g|x−x_j|)
 // over the nearest samples on the face (edge: on its wall faces).
+// Junction strips limited by the width of their faces: a junction block's cross-section is
+// square (the strip on A is as wide as B's layer is thick, and vice versa: both the edge
+// thickness), so where a face is narrower across a junction edge than twice the thickness (the
+// DLR-F6 nacelle's 0.7 mm base ring, joined to the pylon along 8 mm of its rim) the thickness
+// itself is limited: at each station of a junction edge, W = how far the ray from the edge along
+// m_A (m_B) stays inside face A (B), and t <= 0.5 W there, as a point constraint
+// t(x) <= 0.5 W + g |x - P0| on every wall point (so the field stays g-Lipschitz and continuous
+// across faces). Exits through a seam, or through an edge sharing a vertex with the junction edge
+// (an acute corner of the face, where sweep puts the block's end cross-section), do not count.
+// stats.not_honoured.limited_by_face_width {stations, min, at} reports it when it acts.
 //
 // ── Directions ──────────────────────────────────────────────────────────────────────────
 // Face interior: the unit normal into the fluid. Edges (per side when they differ):

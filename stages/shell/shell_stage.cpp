@@ -220,6 +220,93 @@ struct Stage {
     }
     return best;
   }
+  // ── 1b. junction strips limited by the width of their faces ──
+  // A junction block's cross-section is square: the strip on A is as wide as B's layer is thick
+  // and the strip on B as wide as A's layer (PA = P0 + th m_A, PB = P0 + th m_B, PC = PA's shell
+  // image ~ P0 + th (m_A + m_B)), all the edge thickness th. Where a face is narrower than that
+  // across the junction edge (DLR-F6: the nacelle's blunt base, a plane ring 0.7 mm wide, meets
+  // the pylon along 8 mm of its outer circle; th 2.4 mm) the strip reaches past the face's far
+  // side, its boundary crosses the face's other loop in (u,v), and sweep cannot triangulate the
+  // face. The strip alone cannot be made narrower (B's layer would then be thinner than B's field
+  // next to it: a step), so the thickness itself is limited there: at each station of a junction
+  // edge, W_X = how far the ray P0 + s m_X (projected on X) stays inside face X (X = A, B), and
+  // th <= kStripFraction x W_X. Each limit is a point constraint t(x) <= a + g |x - P0|, applied by
+  // thickness_at to every wall point (3D distance, like the medial bound it joins): the field
+  // stays g-Lipschitz and continuous across faces, a dimple of radius (T - a) / g around the
+  // narrow place. Exits through an edge that shares a vertex with the junction edge (the face's
+  // side edge at an acute corner, where sweep puts the block's end cross-section) or through a
+  // seam (not a boundary in 3D) do not count. Faces at least T / kStripFraction wide across their
+  // junction edges (every case before DLR-F6) are not affected: their shells are unchanged.
+  static constexpr double kStripFraction = 0.5;
+  struct WidthLimit {
+    Vec3 p;
+    double a;
+  };
+  std::vector<WidthLimit> width_limits;
+  long width_limited_stations = 0;
+  double width_limit_min = INFINITY;
+  Vec3 width_limit_at{};
+  // how far the ray from station k of edge e along dir stays inside face X (INFINITY: beyond smax,
+  // or it leaves through an edge that does not count, see above)
+  double face_width(int e, int k, int X, const Vec3& dir, double smax) const {
+    const EdgeInfo& I = E[e];
+    cad::Vec2 hint = I.uv[k].at(X);
+    auto inside = [&](double s, cad::Vec2& hnt) {
+      auto pr = shape.project_to_face(X, cv(add(I.p[k], mul(dir, s))), hnt);
+      hnt = cad::Vec2{pr.u, pr.v};
+      return shape.face_contains_uv(X, pr.u, pr.v);
+    };
+    const int N = 8;
+    double lo = 0, hi = -1;
+    for (int i = 1; i <= N; ++i) {
+      double s = smax * i / N;
+      if (!inside(s, hint)) {
+        hi = s;
+        break;
+      }
+      lo = s;
+    }
+    if (hi < 0) return INFINITY;
+    cad::Vec2 h2 = hint;
+    for (int it = 0; it < 10; ++it) {
+      double mid = 0.5 * (lo + hi);
+      cad::Vec2 hh = I.uv[k].at(X);
+      if (inside(mid, hh)) lo = mid;
+      else hi = mid, h2 = hh;
+    }
+    // the edge it leaves through
+    auto q = shape.face_point(X, h2.u, h2.v);
+    int best = -1;
+    double bd = INFINITY;
+    for (int f2e : face_edges_cache[X]) {
+      if (shape.edge_degenerate(f2e)) continue;
+      double d = shape.project_to_edge(f2e, q).distance;
+      if (d < bd) bd = d, best = f2e;
+    }
+    if (best < 0 || best == e || shape.edge_is_seam(best, X)) return INFINITY;
+    auto vs = shape.edge_vertices(best);
+    for (int v : vs)
+      if (v >= 0 && (v == I.v0 || v == I.v1)) return INFINITY;
+    return lo;
+  }
+  void junction_width_limits() {
+    const double smax = T / kStripFraction;
+    for (int e = 0; e < ne; ++e) {
+      const EdgeInfo& I = E[e];
+      if (!I.junction || I.t.empty()) continue;
+      for (std::size_t k = 0; k < I.t.size(); ++k) {
+        double w = std::min(face_width(e, static_cast<int>(k), I.a, I.ma[k], smax),
+                            face_width(e, static_cast<int>(k), I.b, I.mb[k], smax));
+        if (!std::isfinite(w)) continue;
+        double a = kStripFraction * w;
+        if (!(a < T)) continue;
+        width_limits.push_back({I.p[k], a});
+        ++width_limited_stations;
+        if (a < width_limit_min) width_limit_min = a, width_limit_at = I.p[k];
+      }
+    }
+  }
+
   // ── 2. thickness on the wall samples ──
   long corner_balls = 0, limited_samples = 0, limited_by_lfs = 0;
   double lfs_factor = 0;
@@ -320,7 +407,8 @@ struct Stage {
   }
 
   // thickness at a wall point on one of `faces`: min_j (t_j + g |x - x_j|) over nearby samples
-  double thickness_at(const Vec3& x, const std::vector<int>& faces) const {
+  // (then the junction width limits, in thickness_at below)
+  double medial_thickness_at(const Vec3& x, const std::vector<int>& faces) const {
     for (int k : {24, 96, 400}) {
       auto nb = ws_index->nearest(x, k);
       double t = INFINITY;
@@ -334,6 +422,11 @@ struct Stage {
     }
     auto nb = ws_index->nearest(x, 1);
     return std::min(T, ws_t[nb[0].first] + grad * nb[0].second);
+  }
+  double thickness_at(const Vec3& x, const std::vector<int>& faces) const {
+    double t = medial_thickness_at(x, faces);
+    for (auto& L : width_limits) t = std::min(t, L.a + grad * norm(sub(x, L.p)));
+    return t;
   }
 
   // ── 3. edge fields ──
@@ -1074,6 +1167,7 @@ struct Stage {
     classify_edges();
     face_edges_cache.resize(nf);
     for (int f = 0; f < nf; ++f) face_edges_cache[f] = shape.face_edges(f);
+    junction_width_limits();
     ctx.progress(0.15, "thickness on the wall samples");
     sample_thickness();
     ctx.progress(0.25, "edge fields");
@@ -1143,6 +1237,9 @@ struct Stage {
                              {"medial_limit_at", lim_at},
                              {"min_thickness", tmin},
                              {"worst_location", worst}};
+    if (width_limited_stations > 0)  // only when it acts: shells of wide enough faces keep their bytes
+      stats["not_honoured"]["limited_by_face_width"] = {
+          {"stations", width_limited_stations}, {"min", width_limit_min}, {"at", width_limit_at}};
     stats["corner_balls_ignored"] = corner_balls;
     stats["self_intersections"] = inter.pairs;
     nlohmann::json rundiag;  // diagnostics of this run: in the stage's report (stats), not in the artifact

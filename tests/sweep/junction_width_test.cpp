@@ -1,0 +1,106 @@
+// Junction strips wider than the face they lie on (the DLR-F6 case, in small): a block with a
+// second block on top leaves a ledge 0.2 wide around it, joined to the upper block's sides by
+// concave edges (C-type junctions), and the shell is 0.5 thick. The strip on the ledge may be at
+// most half the ledge wide, so the shell limits the thickness there (shell.hpp, "junction strips
+// limited by the width of their faces"): before, the closed ring's strip curve ran 0.3 outside
+// the ledge (nodes classified on the ledge lay off the body, undetected by validity) and the open
+// U stopped sweep ("the nodes of CAD edge 21 are out of order after the junction corner was
+// placed on it"). Each case about 10 s.
+#include <doctest/doctest.h>
+
+#include "ledge_shapes.hpp"
+#include "stages/io/mesh_io.hpp"
+#include "stages/model/quality.hpp"
+#include "support.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <filesystem>
+#include <string>
+
+namespace {
+namespace fs = std::filesystem;
+
+nlohmann::json stage_stats(const fs::path& out, const std::string& stage) {
+  auto r = nlohmann::json::parse(mftest::read_text(out / "report.json"));
+  for (auto& s : r.at("stages"))
+    if (s.value("name", "") == stage) return s.value("stats", nlohmann::json::object());
+  return nlohmann::json::object();
+}
+
+// runs the ledge workflow up to `last` (sweep or tet); returns the output folder
+fs::path run_ledge(const std::string& tag, bool open_u, const std::string& last) {
+  fs::path dir = mftest::temp_dir(tag);
+  sweeptest::write_ledge_body(dir / "ledge.brep", 0.2, open_u);
+  std::string wf = "meshflow: 1\nname: ledge\nstages:\n"
+                   "  geometry: {kind: step, with: {file: ledge.brep, units: m}}\n"
+                   "  heal: {kind: heal, needs: [geometry], with: {fluid: box, box_padding: 1}}\n"
+                   "  medial: {kind: medial, needs: [heal]}\n"
+                   "  shell: {kind: shell, needs: [heal, medial], with: {thickness: 0.125, topology: C, junction_with: [wall]}}\n"
+                   "  balance: {kind: balance, needs: [heal, shell]}\n"
+                   "  sweep: {kind: sweep, needs: [heal, shell, balance]}\n";
+  if (last == "tet") wf += "  tet: {kind: tet, needs: [sweep]}\n";
+  wf += "outputs:\n  mesh: {from: " + last + ", formats: [msh]}\n";
+  mftest::write_text(dir / "wf.yaml", wf);
+  auto r = mftest::sh(std::string(MESHFLOW_EXE) + " run " + (dir / "wf.yaml").string() + " --cache " + (dir / "cache").string() +
+                      " --out " + (dir / "out").string() + " 2>&1");
+  INFO(r.out);
+  REQUIRE(r.code == 0);
+  return dir / "out";
+}
+
+// the shell's face-width limit acted at the ledge: th <= 0.5 x 0.2, the requested 0.5 elsewhere
+void check_shell(const fs::path& out) {
+  auto st = stage_stats(out, "shell");
+  REQUIRE(st.contains("not_honoured"));
+  REQUIRE(st["not_honoured"].contains("limited_by_face_width"));
+  auto lim = st["not_honoured"]["limited_by_face_width"];
+  MESSAGE("shell: " << lim.dump() << ", crossings " << st.at("self_intersections"));
+  CHECK(lim.at("stations").get<long>() > 0);
+  CHECK(lim.at("min").get<double>() <= 0.1 * (1 + 1e-3));
+  CHECK(lim.at("min").get<double>() > 0.09);
+  CHECK(st.at("junction_strip_fallback_faces").empty());
+  CHECK(st.at("thickness").at("grid_max").get<double>() == doctest::Approx(0.5));
+}
+
+// valid, conforming, and every node classified on a wall face lies on the body (its box
+// [0,4] x [0,4] x [0,2]; the far-field box is 4 away)
+void check_mesh(const fs::path& file) {
+  auto m = meshflow::io::read_mesh(file);
+  auto st = meshflow::model::mesh_stats(m);
+  CHECK(st.at("invalid").get<int>() == 0);
+  CHECK(st.at("nonconforming_faces").get<int>() == 0);
+  REQUIRE(m.node_entity_dim.size() == m.num_nodes());
+  long off = 0, on = 0;
+  for (std::size_t i = 0; i < m.num_nodes(); ++i) {
+    if (m.node_entity_dim[i] != 2) continue;
+    double x = m.x[i], y = m.y[i], z = m.z[i];
+    bool near_body = x > -1 && x < 5 && y > -1 && y < 5 && z > -1 && z < 3;
+    if (!near_body) continue;
+    ++on;
+    const double e = 1e-9;
+    if (x < -e || x > 4 + e || y < -e || y > 4 + e || z < -e || z > 2 + e) ++off;
+  }
+  CHECK(on > 100);
+  CHECK(off == 0);
+}
+}  // namespace
+
+TEST_CASE("junction along a ledge narrower than its strip (closed ring): thickness limited by the face width, strip nodes on the ledge, valid mesh through tet") {
+  fs::path out = run_ledge("jw-ring", false, "tet");
+  check_shell(out);
+  check_mesh(out / "mesh.msh");
+  auto sw = stage_stats(out, "sweep");
+  CHECK(sw.at("mesh").at("elements").at("hex").get<long>() > 0);
+}
+
+// The open U: the junctions end where the upper block is flush with the lower one, at a third
+// face (the common side y = 4), which is not part of the junction. sweep now meshes it; tet is
+// not run here: TetGen stops (signal 11) on this near field's outer surface, where the junction
+// ends at that third face (as DLR-F6's pylon ends on the nacelle), the next cause to fix.
+TEST_CASE("junction along a ledge narrower than its strip (open U, junction ends at a third face): sweep gives a valid near field") {
+  fs::path out = run_ledge("jw-u", true, "sweep");
+  check_shell(out);
+  check_mesh(out / "mesh.msh");
+}
