@@ -28,12 +28,17 @@
 #include <expat.h>
 
 #include <algorithm>
+#include <charconv>
 #include <cmath>
+#include <cstdint>
+#include <string_view>
+#include <tuple>
 #include <fstream>
 #include <map>
 #include <memory>
 #include <set>
 #include <sstream>
+#include <stdexcept>
 
 namespace meshflow::io {
 
@@ -905,6 +910,72 @@ Mesh read_nektar(const std::filesystem::path& fp) {
   return m;
 }
 
+namespace {
+// Output buffer for write_nektar: numbers by std::to_chars (doubles as %.17g, what the stream
+// with precision 17 wrote), flushed to the file in 8 MB blocks.
+struct NekOut {
+  std::ofstream f;
+  std::string s;
+  const std::filesystem::path& fp;
+  explicit NekOut(const std::filesystem::path& p) : f(p, std::ios::binary), fp(p) {
+    if (!f) throw MeshIOError(fp.string() + ": cannot open the file for writing");
+    s.reserve((8u << 20) + 4096);
+  }
+  void flush_if_full() {
+    if (s.size() >= (8u << 20)) flush();
+  }
+  void flush() {
+    f.write(s.data(), static_cast<std::streamsize>(s.size()));
+    if (!f) throw MeshIOError(fp.string() + ": write failed (disk full?)");
+    s.clear();
+  }
+  NekOut& operator<<(std::string_view t) {
+    s.append(t);
+    return *this;
+  }
+  NekOut& operator<<(const char* t) { return *this << std::string_view(t); }
+  NekOut& operator<<(const std::string& t) { return *this << std::string_view(t); }
+  NekOut& operator<<(long v) {
+    char buf[24];
+    auto r = std::to_chars(buf, buf + sizeof buf, v);
+    s.append(buf, r.ptr);
+    return *this;
+  }
+  NekOut& operator<<(int v) { return *this << static_cast<long>(v); }
+  NekOut& operator<<(double v) {
+    char buf[40];
+    auto r = std::to_chars(buf, buf + sizeof buf, v, std::chars_format::general, 17);
+    s.append(buf, r.ptr);
+    return *this;
+  }
+};
+
+// A face's vertices, sorted, compared as std::set<uint32_t> compares (lexicographically, a
+// prefix first): the order the faces were numbered in when they were keyed by std::set.
+struct FaceKey {
+  std::uint32_t v[4] = {0, 0, 0, 0};
+  std::uint8_t n = 0;
+  bool operator<(const FaceKey& o) const { return std::lexicographical_compare(v, v + n, o.v, o.v + o.n); }
+  bool operator==(const FaceKey& o) const { return n == o.n && std::equal(v, v + n, o.v); }
+};
+FaceKey face_key(const std::uint32_t* nd, const int* local, int count) {
+  if (count < 3 || count > 4) throw std::logic_error("Nektar++ writer: a face with " + std::to_string(count) + " vertices");
+  FaceKey k;
+  k.n = static_cast<std::uint8_t>(count);
+  for (int i = 0; i < count; ++i) k.v[i] = nd[local[i]];
+  std::sort(k.v, k.v + count);
+  return k;
+}
+// Where an edge or face was first seen: block, element, local index (its nodes come from there).
+struct Seen {
+  std::uint32_t block, element, local;
+};
+}  // namespace
+
+// Numbering follows the first writer of this format (maps keyed by vertex pairs and vertex
+// sets): vertices by node index, edges by their vertex pair, faces by their sorted vertices, the
+// nodes of an edge or face from the first element that uses it. Sorted vectors instead of maps
+// of sets: the demo's order-4 mesh (1.3M nodes) took 47 s, mostly allocation.
 void write_nektar(const Mesh& m, const std::filesystem::path& fp) {
   m.check();
   const int dim = m.dimension();
@@ -917,124 +988,141 @@ void write_nektar(const Mesh& m, const std::filesystem::path& fp) {
                         shape_name(b.shape) + " elements");
     if (b.order != P) throw MeshIOError(fp.string() + ": Nektar++ output needs one element order for all elements");
   }
-  std::ostringstream o;
-  o.precision(17);
+  NekOut o(fp);
   o << "<?xml version=\"1.0\" encoding=\"utf-8\" ?>\n<NEKTAR>\n  <GEOMETRY DIM=\"" << dim << "\" SPACE=\"3\">\n";
   // vertices: element vertex nodes in node order
-  std::map<std::uint32_t, long> vid;
+  std::vector<long> vid(m.num_nodes(), -1);
   for (auto& b : m.blocks)
     if (dimension(b.shape) == dim)
       for (size_t e = 0; e < b.size(); ++e)
         for (int v = 0; v < num_vertices(b.shape); ++v) vid[b.element(e)[v]] = 0;
   long k = 0;
   o << "    <VERTEX>\n";
-  for (auto& [n, id] : vid) {
-    id = k++;
-    o << "      <V ID=\"" << id << "\">" << m.x[n] << " " << m.y[n] << " " << m.z[n] << "</V>\n";
+  for (std::uint32_t n = 0; n < vid.size(); ++n) {
+    if (vid[n] < 0) continue;
+    vid[n] = k++;
+    o << "      <V ID=\"" << vid[n] << "\">" << m.x[n] << " " << m.y[n] << " " << m.z[n] << "</V>\n";
+    o.flush_if_full();
   }
   o << "    </VERTEX>\n";
-  // edges (sorted by vertex pair) with their nodes from the first element using them
-  std::map<std::pair<std::uint32_t, std::uint32_t>, std::pair<long, std::vector<std::uint32_t>>> edges;
-  std::map<std::set<std::uint32_t>, std::pair<long, std::vector<std::uint32_t>>> faces;  // face nodes in (a,b,c) order
-  std::map<std::set<std::uint32_t>, std::vector<std::uint32_t>> face_verts;
-  for (auto& b : m.blocks) {
+  // edges and faces: every use with where it was seen, sorted by key then first use, deduplicated
+  using EdgeKey = std::pair<std::uint32_t, std::uint32_t>;
+  std::vector<std::pair<EdgeKey, Seen>> edges;
+  std::vector<std::pair<FaceKey, Seen>> faces;
+  for (std::uint32_t bi = 0; bi < m.blocks.size(); ++bi) {
+    auto& b = m.blocks[bi];
     if (dimension(b.shape) != dim) continue;
     for (size_t e = 0; e < b.size(); ++e) {
       const std::uint32_t* nd = b.element(e);
-      for (size_t ei = 0; ei < edge_vertices(b.shape).size(); ++ei) {
-        auto [a, c] = edge_vertices(b.shape)[ei];
-        std::uint32_t va = nd[a], vc = nd[c];
-        auto key = std::make_pair(std::min(va, vc), std::max(va, vc));
-        if (edges.count(key)) continue;
-        std::vector<std::uint32_t> en;  // from key.first to key.second
-        const auto& loc = edge_nodes(b.shape, P)[ei];  // v0, v1, interior from v0
-        std::vector<std::uint32_t> line = {nd[loc[0]]};
-        for (size_t q = 2; q < loc.size(); ++q) line.push_back(nd[loc[q]]);
-        line.push_back(nd[loc[1]]);
-        if (va != key.first) std::reverse(line.begin(), line.end());
-        edges[key] = {0, line};
+      const auto& ev = edge_vertices(b.shape);
+      for (std::uint32_t ei = 0; ei < ev.size(); ++ei) {
+        const std::uint32_t va = nd[ev[ei][0]], vc = nd[ev[ei][1]];
+        edges.push_back({{std::min(va, vc), std::max(va, vc)}, {bi, static_cast<std::uint32_t>(e), ei}});
       }
-      if (dim == 3)
-        for (size_t fi = 0; fi < face_vertices(b.shape).size(); ++fi) {
-          const auto& fv = face_vertices(b.shape)[fi];
-          std::set<std::uint32_t> key;
-          std::vector<std::uint32_t> fvn;
-          for (int v : fv) key.insert(nd[v]), fvn.push_back(nd[v]);
-          if (faces.count(key)) continue;
-          std::vector<std::uint32_t> fn;
-          for (int ln : face_nodes(b.shape, P)[fi]) fn.push_back(nd[ln]);
-          faces[key] = {0, fn};
-          face_verts[key] = fvn;
-        }
+      if (dim == 3) {
+        const auto& fvs = face_vertices(b.shape);
+        for (std::uint32_t fi = 0; fi < fvs.size(); ++fi)
+          faces.push_back({face_key(nd, fvs[fi].data(), (int)fvs[fi].size()), {bi, static_cast<std::uint32_t>(e), fi}});
+      }
     }
   }
-  k = 0;
+  auto seen_before = [](const Seen& a, const Seen& c) {
+    return std::tie(a.block, a.element, a.local) < std::tie(c.block, c.element, c.local);
+  };
+  std::sort(edges.begin(), edges.end(), [&](const auto& a, const auto& c) {
+    return a.first != c.first ? a.first < c.first : seen_before(a.second, c.second);
+  });
+  edges.erase(std::unique(edges.begin(), edges.end(), [](const auto& a, const auto& c) { return a.first == c.first; }), edges.end());
+  std::sort(faces.begin(), faces.end(), [&](const auto& a, const auto& c) {
+    return !(a.first == c.first) ? a.first < c.first : seen_before(a.second, c.second);
+  });
+  faces.erase(std::unique(faces.begin(), faces.end(), [](const auto& a, const auto& c) { return a.first == c.first; }), faces.end());
+  auto eid = [&](std::uint32_t a, std::uint32_t c) -> long {
+    const EdgeKey key{std::min(a, c), std::max(a, c)};
+    auto it = std::lower_bound(edges.begin(), edges.end(), key, [](const auto& x, const EdgeKey& y) { return x.first < y; });
+    return it - edges.begin();
+  };
+  auto find_face = [&](const FaceKey& key) -> long {
+    auto it = std::lower_bound(faces.begin(), faces.end(), key, [](const auto& x, const FaceKey& y) { return x.first < y; });
+    return it != faces.end() && it->first == key ? it - faces.begin() : -1;
+  };
+  // nodes of edge i from key.first to key.second, of face i in its first element's face order
+  auto edge_line = [&](std::size_t i, std::vector<std::uint32_t>& line) {
+    const Seen& w = edges[i].second;
+    const auto& b = m.blocks[w.block];
+    const std::uint32_t* nd = b.element(w.element);
+    const auto& loc = edge_nodes(b.shape, P)[w.local];  // v0, v1, interior from v0
+    line.assign(1, nd[loc[0]]);
+    for (size_t q = 2; q < loc.size(); ++q) line.push_back(nd[loc[q]]);
+    line.push_back(nd[loc[1]]);
+    if (nd[loc[0]] != edges[i].first.first) std::reverse(line.begin(), line.end());
+  };
+  auto face_first = [&](std::size_t i) {
+    const Seen& w = faces[i].second;
+    const auto& b = m.blocks[w.block];
+    return std::make_pair(b.element(w.element), &b);
+  };
   o << "    <EDGE>\n";
-  for (auto& [key, v] : edges) {
-    v.first = k++;
-    o << "      <E ID=\"" << v.first << "\">" << vid.at(key.first) << " " << vid.at(key.second) << "</E>\n";
+  for (std::size_t i = 0; i < edges.size(); ++i) {
+    o << "      <E ID=\"" << (long)i << "\">" << vid[edges[i].first.first] << " " << vid[edges[i].first.second] << "</E>\n";
+    o.flush_if_full();
   }
   o << "    </EDGE>\n";
-  auto eid = [&](std::uint32_t a, std::uint32_t b) { return edges.at({std::min(a, b), std::max(a, b)}).first; };
   if (dim == 3) {
-    k = 0;
     o << "    <FACE>\n";
-    for (auto& [key, v] : faces) {
-      v.first = k++;
-      const auto& fv = face_verts.at(key);
+    for (std::size_t i = 0; i < faces.size(); ++i) {
+      auto [nd, b] = face_first(i);
+      const auto& fv = face_vertices(b->shape)[faces[i].second.local];
       const char* L = fv.size() == 4 ? "Q" : "T";
-      o << "      <" << L << " ID=\"" << v.first << "\">";
-      for (size_t q = 0; q < fv.size(); ++q) o << (q ? " " : "") << eid(fv[q], fv[(q + 1) % fv.size()]);
+      o << "      <" << L << " ID=\"" << (long)i << "\">";
+      for (size_t q = 0; q < fv.size(); ++q) o << (q ? " " : "") << eid(nd[fv[q]], nd[fv[(q + 1) % fv.size()]]);
       o << "</" << L << ">\n";
+      o.flush_if_full();
     }
     o << "    </FACE>\n";
   }
   o << "    <ELEMENT>\n";
   std::map<std::pair<int, std::string>, std::vector<long>> dom_ids;  // (entity tag, letter) -> element ids
   long elid = 0;
-  std::map<std::set<std::uint32_t>, long> side_id;
+  // Nektar++'s face order of each shape, as Gmsh vertex indices (prism: Nektar's
+  // vertices 0,1,2,3,4,5 are our 0,1,4,3,2,5: its triangles are faces 1 and 3)
+  static const std::vector<std::vector<int>> FT = {{0, 1, 2}, {0, 1, 3}, {1, 2, 3}, {0, 2, 3}};
+  static const std::vector<std::vector<int>> FH = {{0, 1, 2, 3}, {0, 1, 5, 4}, {1, 2, 6, 5}, {3, 2, 6, 7}, {0, 3, 7, 4}, {4, 5, 6, 7}};
+  static const std::vector<std::vector<int>> FR = {{0, 1, 4, 3}, {0, 1, 2}, {1, 4, 5, 2}, {3, 4, 5}, {0, 3, 5, 2}};
+  static const std::vector<std::vector<int>> FP = {{0, 1, 2, 3}, {0, 1, 4}, {1, 2, 4}, {3, 2, 4}, {0, 3, 4}};
   for (auto& b : m.blocks) {
     if (dimension(b.shape) != dim) continue;
+    const char* L = dim == 3 ? (b.shape == Shape::Tet ? "A" : b.shape == Shape::Hex ? "H" : b.shape == Shape::Prism ? "R" : "P")
+                             : (b.shape == Shape::Quad ? "Q" : "T");
+    auto& ids = dom_ids[{b.entity_tag, L}];
+    const auto& F = b.shape == Shape::Tet ? FT : b.shape == Shape::Hex ? FH : b.shape == Shape::Prism ? FR : FP;
     for (size_t e = 0; e < b.size(); ++e) {
       const std::uint32_t* nd = b.element(e);
+      o << "      <" << L << " ID=\"" << elid << "\">";
       if (dim == 2) {
         int nv = num_vertices(b.shape);
-        o << "      <" << (b.shape == Shape::Quad ? "Q" : "T") << " ID=\"" << elid << "\">";
         for (int v = 0; v < nv; ++v) o << (v ? " " : "") << eid(nd[v], nd[(v + 1) % nv]);
-        o << "</" << (b.shape == Shape::Quad ? "Q" : "T") << ">\n";
       } else {
-        // Nektar++'s face order of each shape, as Gmsh vertex indices (prism: Nektar's
-        // vertices 0,1,2,3,4,5 are our 0,1,4,3,2,5: its triangles are faces 1 and 3)
-        static const std::vector<std::vector<int>> FT = {{0, 1, 2}, {0, 1, 3}, {1, 2, 3}, {0, 2, 3}};
-        static const std::vector<std::vector<int>> FH = {{0, 1, 2, 3}, {0, 1, 5, 4}, {1, 2, 6, 5}, {3, 2, 6, 7}, {0, 3, 7, 4}, {4, 5, 6, 7}};
-        static const std::vector<std::vector<int>> FR = {{0, 1, 4, 3}, {0, 1, 2}, {1, 4, 5, 2}, {3, 4, 5}, {0, 3, 5, 2}};
-        static const std::vector<std::vector<int>> FP = {{0, 1, 2, 3}, {0, 1, 4}, {1, 2, 4}, {3, 2, 4}, {0, 3, 4}};
-        const auto& F = b.shape == Shape::Tet ? FT : b.shape == Shape::Hex ? FH : b.shape == Shape::Prism ? FR : FP;
-        const char* L = b.shape == Shape::Tet ? "A" : b.shape == Shape::Hex ? "H" : b.shape == Shape::Prism ? "R" : "P";
-        o << "      <" << L << " ID=\"" << elid << "\">";
-        for (size_t f = 0; f < F.size(); ++f) {
-          std::set<std::uint32_t> key;
-          for (int v : F[f]) key.insert(nd[v]);
-          o << (f ? " " : "") << faces.at(key).first;
-        }
-        o << "</" << L << ">\n";
+        for (size_t f = 0; f < F.size(); ++f) o << (f ? " " : "") << find_face(face_key(nd, F[f].data(), (int)F[f].size()));
       }
-      dom_ids[{b.entity_tag, dim == 3 ? (b.shape == Shape::Tet ? "A" : b.shape == Shape::Hex ? "H" : b.shape == Shape::Prism ? "R" : "P")
-                                      : (b.shape == Shape::Quad ? "Q" : "T")}]
-          .push_back(elid++);
+      o << "</" << L << ">\n";
+      o.flush_if_full();
+      ids.push_back(elid++);
     }
   }
   o << "    </ELEMENT>\n";
   if (P >= 2) {
     o << "    <CURVED>\n";
-    long cid = 0;
-    for (auto& [key, v] : edges) {
-      o << "      <E ID=\"" << cid++ << "\" EDGEID=\"" << v.first << "\" NUMPOINTS=\"" << P + 1 << "\" TYPE=\"PolyEvenlySpaced\">";
-      for (auto n : v.second) o << " " << m.x[n] << " " << m.y[n] << " " << m.z[n];
+    std::vector<std::uint32_t> line;
+    for (std::size_t i = 0; i < edges.size(); ++i) {
+      edge_line(i, line);
+      o << "      <E ID=\"" << (long)i << "\" EDGEID=\"" << (long)i << "\" NUMPOINTS=\"" << P + 1 << "\" TYPE=\"PolyEvenlySpaced\">";
+      for (auto n : line) o << " " << m.x[n] << " " << m.y[n] << " " << m.z[n];
       o << " </E>\n";
+      o.flush_if_full();
     }
     if (dim == 3) {
-      cid = 0;
+      long cid = 0;
       // Nektar order of the equispaced triangle: vertices, edges, interior row by row
       std::vector<int> order;
       {
@@ -1055,16 +1143,19 @@ void write_nektar(const Mesh& m, const std::filesystem::path& fp) {
         const auto& ql = lattice(Shape::Quad, P);
         for (int i = 0; i < (int)ql.size(); ++i) qorder[ql[i][0] + (P + 1) * ql[i][1]] = i;
       }
-      for (auto& [key, v] : faces) {
-        const bool quad = key.size() == 4;
+      for (std::size_t i = 0; i < faces.size(); ++i) {
+        const bool quad = faces[i].first.n == 4;
         if (!quad && P < 3) continue;
-        o << "      <F ID=\"" << cid++ << "\" FACEID=\"" << v.first << "\" NUMPOINTS=\""
+        auto [nd, b] = face_first(i);
+        const auto& fn = face_nodes(b->shape, P)[faces[i].second.local];
+        o << "      <F ID=\"" << cid++ << "\" FACEID=\"" << (long)i << "\" NUMPOINTS=\""
           << (quad ? (P + 1) * (P + 1) : (P + 1) * (P + 2) / 2) << "\" TYPE=\"" << (quad ? "PolyEvenlySpaced" : "NodalTriEvenlySpaced") << "\">";
         for (int q : quad ? qorder : order) {
-          auto n = v.second[q];
+          auto n = nd[fn[q]];
           o << " " << m.x[n] << " " << m.y[n] << " " << m.z[n];
         }
         o << " </F>\n";
+        o.flush_if_full();
       }
     }
     o << "    </CURVED>\n";
@@ -1084,8 +1175,8 @@ void write_nektar(const Mesh& m, const std::filesystem::path& fp) {
     }
     return s;
   };
-  std::string letter = dim == 3 ? "A" : (m.blocks.empty() ? "Q" : "");
   for (auto& [tl, ids] : dom_ids) {
+    if (ids.empty()) continue;
     const int tag = tl.first;
     const std::string L = tl.second;
     std::string name = m.group_name(dim, tag);
@@ -1098,12 +1189,14 @@ void write_nektar(const Mesh& m, const std::filesystem::path& fp) {
     for (size_t e = 0; e < b.size(); ++e) {
       const std::uint32_t* nd = b.element(e);
       if (dim == 3) {
-        std::set<std::uint32_t> key(nd, nd + num_vertices(b.shape));
-        auto it = faces.find(key);
-        if (it != faces.end()) bnd[b.entity_tag].push_back(it->second.first);
+        std::vector<int> all(num_vertices(b.shape));
+        for (int v = 0; v < (int)all.size(); ++v) all[v] = v;
+        const long id = find_face(face_key(nd, all.data(), (int)all.size()));
+        if (id >= 0) bnd[b.entity_tag].push_back(id);
       } else {
-        auto it = edges.find({std::min(nd[0], nd[1]), std::max(nd[0], nd[1])});
-        if (it != edges.end()) bnd[b.entity_tag].push_back(it->second.first);
+        const EdgeKey key{std::min(nd[0], nd[1]), std::max(nd[0], nd[1])};
+        auto it = std::lower_bound(edges.begin(), edges.end(), key, [](const auto& x, const EdgeKey& y) { return x.first < y; });
+        if (it != edges.end() && it->first == key) bnd[b.entity_tag].push_back(it - edges.begin());
       }
     }
   }
@@ -1114,10 +1207,7 @@ void write_nektar(const Mesh& m, const std::filesystem::path& fp) {
       << ranges(ids) << "] </C>\n";
   }
   o << "    </COMPOSITE>\n    <DOMAIN> C[" << ranges(domain) << "] </DOMAIN>\n  </GEOMETRY>\n</NEKTAR>\n";
-  std::ofstream f(fp, std::ios::binary);
-  if (!f) throw MeshIOError(fp.string() + ": cannot open the file for writing");
-  f << o.str();
-  if (!f) throw MeshIOError(fp.string() + ": write failed (disk full?)");
+  o.flush();
 }
 
 }  // namespace meshflow::io
