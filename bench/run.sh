@@ -25,7 +25,8 @@ fi
   echo
   for f in bench/results/*.md; do
     [ -f "$f" ] || continue
-    cat "$f"
+    # fragments link their plots beside them (bench/results/X.png); RESULTS.md is one folder up
+    sed -E 's#\]\(([^/)]+\.png)\)#](results/\1)#g' "$f"
     echo
   done
 } > bench/RESULTS.md
