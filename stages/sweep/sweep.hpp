@@ -64,6 +64,18 @@
 // refuses that, naming the junction and F, before untangling. A fix needs F's layer to close onto the end face (F's corner triangle (V, PA, PB) swept
 // to the end face, or the end cross-section laid on F); junction_angle_deg 170 makes DLR-F6's
 // pylon-nose edges junctions, which closes that loop but not the others.
+// Why the pocket cannot simply be filled (measured on the open U, where F is flush and convex
+// with A and B): F's prism over V-PA has the side face q1 = (V, PA, PC, img V) and the hex end
+// face is q3 = (V, PA, PC, PB); the pocket between them and q2 = (V, PB, PC, img V) is a real
+// volume (a bipyramid with apexes V and PC, equator PA, PB, img V: its three tets have one sign),
+// but q1 and q3 share the two consecutive edges V-PA and PA-PC, so as bilinear faces they are
+// tangent at PA (likewise q1, q2 at img V and q2, q3 at PB): any linear element on q1 and any on
+// q3 need their interiors on opposite sides of one plane there. Three pyramids on q1, q2, q3
+// with a common apex inside the pocket were tried: no apex (centroids, axis midpoint, blends)
+// gives even one valid set. So the fix is not a filler but a different block structure at V: F's
+// layer edge at V and the strip corners must not form two quads with two common edges, e.g. the
+// convex edges A|F and B|F next to V without averaged normals (a fan, or their own end block),
+// which is shell's decision (its direction fields and blocks) before sweep can mesh it.
 // Wall nodes are swept to their shell images by the shell's fields (vertex value, edge field,
 // face grid: the shell's RULE FOR SWEEP); nodes of the strip boundaries map to PC.
 // Wall|other edges that are not junctions (topology O, or tags not in junction_with): the
