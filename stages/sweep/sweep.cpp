@@ -1575,6 +1575,24 @@ std::string Builder::untangle_failure(const std::vector<std::vector<std::uint32_
                     std::to_string(before.size()) + " were inverted before it" +
                     (before.empty() ? std::string() : ", on wall faces " + by_face(before));
   if (moved_only) msg += " (those inverted at the end were valid before: untangling moved them)";
+  // wall node -> a junction whose end cross-section has it as a strip corner (PA or PB)
+  std::map<std::uint32_t, std::vector<const Junction*>> corner_of;
+  for (auto& j : J)
+    for (std::size_t k : {std::size_t(0), j.pa.size() - 1}) corner_of[j.pa[k]].push_back(&j), corner_of[j.pb[k]].push_back(&j);
+  auto foreign_end = [&](std::size_t i) {
+    for (int c = 0; c < 3; ++c) {
+      auto it = corner_of.find(P[i][c]);
+      if (it != corner_of.end())
+        for (auto* j : it->second)
+          if (pface[i] != j->A && pface[i] != j->B) return true;
+    }
+    return false;
+  };
+  std::size_t n_foreign = 0;
+  for (auto i : before) n_foreign += foreign_end(i) ? 1 : 0;
+  if (n_foreign)
+    msg += "; " + std::to_string(n_foreign) + " of those " + std::to_string(before.size()) +
+           " have a wall node that is a strip corner of a junction ending on their face, which is not one of its faces";
   msg += ". First inverted before untangling: the prism on wall face " + std::to_string(F) + " at " + fmt(centre(first));
   std::string hint;
   for (int c = 0; c < 3 && hint.empty(); ++c) {

@@ -72,6 +72,7 @@ TEST_CASE("wing_body.yaml (DLR-F6): medial, shell and balance run, shell crossin
   REQUIRE(r170.code == 1);
   CHECK(r170.out.find("prisms stay inverted after untangling the layer") != std::string::npos);
   CHECK(r170.out.find("were inverted before it, on wall faces 9 (5)") != std::string::npos);
+  CHECK(r170.out.find("10 of those 13 have a wall node that is a strip corner of a junction ending on their face") != std::string::npos);
   CHECK(r170.out.find("First inverted before untangling: the prism on wall face 9") != std::string::npos);
   CHECK(r170.out.find("because the junction ends on face 9, which is not one of its faces") != std::string::npos);
   fs::remove_all(dir);
