@@ -75,7 +75,12 @@
 // gives even one valid set. So the fix is not a filler but a different block structure at V: F's
 // layer edge at V and the strip corners must not form two quads with two common edges, e.g. the
 // convex edges A|F and B|F next to V without averaged normals (a fan, or their own end block),
-// which is shell's decision (its direction fields and blocks) before sweep can mesh it.
+// which is shell's decision (its direction fields and blocks) before sweep can mesh it. Until
+// then tet refuses the U's near field by name: the edge between the tops of F's two prisms at V
+// is used by four faces of its outer surface (the two prism tops and the pyramids on q1, q2).
+// On DLR-F6 at junction_angle_deg 170, 10 of the 13 prisms inverted before untangling have a
+// strip corner of such a junction (the pylon's junctions with the wing's lower surface end on
+// the wing's blunt trailing-edge face); the untangling error counts them.
 // Wall nodes are swept to their shell images by the shell's fields (vertex value, edge field,
 // face grid: the shell's RULE FOR SWEEP); nodes of the strip boundaries map to PC.
 // Wall|other edges that are not junctions (topology O, or tags not in junction_with): the
