@@ -59,7 +59,7 @@
 // boundary, V keeps its own vertex image, and the hex's end face (V, PA, PC, PB) is not a face of
 // F's prisms: it bounds a thin pocket against their side faces (V, PA | PC, img V) and
 // (V, PB | PC, img V). tet puts a pyramid on that exposed quad, whose apex pokes through those
-// prisms (TetGen: intersecting facets, then signal 11). Where F is small (DLR-F6's pylon nose,
+// prisms (TetGen: intersecting facets, then signal 11; tet now refuses it first, see below). Where F is small (DLR-F6's pylon nose,
 // 11 mm) one of its triangles has both PA and PB, whose prism collapses (both swept to PC): sweep
 // refuses that, naming the junction and F, before untangling. A fix needs F's layer to close onto the end face (F's corner triangle (V, PA, PB) swept
 // to the end face, or the end cross-section laid on F); junction_angle_deg 170 makes DLR-F6's
@@ -79,8 +79,8 @@
 // then tet refuses the U's near field by name: the edge between the tops of F's two prisms at V
 // is used by four faces of its outer surface (the two prism tops and the pyramids on q1, q2).
 // On DLR-F6 at junction_angle_deg 170, 10 of the 13 prisms inverted before untangling have a
-// strip corner of such a junction (the pylon's junctions with the wing's lower surface end on
-// the wing's blunt trailing-edge face); the untangling error counts them.
+// strip corner of such a junction (the first: the pylon's junction with the wing's lower surface
+// ends on the wing's blunt trailing-edge face); the untangling error counts them.
 // Wall nodes are swept to their shell images by the shell's fields (vertex value, edge field,
 // face grid: the shell's RULE FOR SWEEP); nodes of the strip boundaries map to PC.
 // Wall|other edges that are not junctions (topology O, or tags not in junction_with): the
