@@ -267,6 +267,8 @@ class Builder {
   std::uint32_t shell_image(std::uint32_t n, int face);
   std::pair<double, shell::Vec3> face_field(int face, double u, double v);
   void volume();
+  std::string untangle_failure(const std::vector<std::vector<std::uint32_t>>& P, const std::vector<int>& pface,
+                               const std::vector<char>& bad_before, const std::vector<std::size_t>& bad_after);
   void untangle(std::vector<std::vector<std::uint32_t>>& prisms);
 };
 
@@ -1467,7 +1469,25 @@ void Builder::volume() {
                      " at that end junctions too (raise shell.junction_angle_deg if they are concave, or add the tag of its "
                      "neighbour to shell.junction_with) or use shell.topology O");
   }
+  // valid in either orientation (valid_or_flip below flips the others)
+  auto prism_ok = [&](const std::vector<std::uint32_t>& p) {
+    double X3[18], Y3[18];
+    const int q[6] = {0, 2, 1, 3, 5, 4};
+    for (int c = 0; c < 6; ++c) {
+      X3[3 * c] = m.x[p[c]], X3[3 * c + 1] = m.y[p[c]], X3[3 * c + 2] = m.z[p[c]];
+      Y3[3 * c] = m.x[p[q[c]]], Y3[3 * c + 1] = m.y[p[q[c]]], Y3[3 * c + 2] = m.z[p[q[c]]];
+    }
+    return model::element_quality(model::Shape::Prism, 1, X3).valid || model::element_quality(model::Shape::Prism, 1, Y3).valid;
+  };
+  std::vector<char> bad_before(P.size(), 0);
+  for (std::size_t i = 0; i < P.size(); ++i) bad_before[i] = !prism_ok(P[i]);
   untangle(P);
+  {
+    std::vector<std::size_t> bad_after;
+    for (std::size_t i = 0; i < P.size(); ++i)
+      if (!prism_ok(P[i])) bad_after.push_back(i);
+    if (!bad_after.empty()) throw StageError(untangle_failure(P, pface, bad_before, bad_after));
+  }
   if (std::getenv("MESHFLOW_SWEEP_DEBUG")) {
     int bad = 0;
     for (std::size_t i = 0; i < P.size(); ++i) {
@@ -1518,6 +1538,83 @@ void Builder::volume() {
       ++R.slide_quads;
     }
   }
+}
+
+// The message when untangling leaves inverted prisms. Untangling smooths directions over the
+// neighbours of inverted prisms and thins the layer where they stay inverted, so the prisms
+// still inverted at its end may be valid ones it moved (DLR-F6 at junction_angle_deg 170: the
+// nacelle's face 0, thinned to 3e-4 mm, while the 13 inverted before were on other faces). The
+// message names the prisms inverted before untangling first (by face), and the first of them,
+// and says when one of its wall nodes is a strip corner (PA or PB) of the end cross-section of a
+// junction that ends on that prism's face without it being one of the junction's faces (that
+// node is swept to the junction's outer corner PC, across the face: sweep.hpp, KNOWN LIMITATION).
+std::string Builder::untangle_failure(const std::vector<std::vector<std::uint32_t>>& P, const std::vector<int>& pface,
+                                      const std::vector<char>& bad_before, const std::vector<std::size_t>& bad_after) {
+  auto by_face = [&](const std::vector<std::size_t>& list) {
+    std::map<int, int> n;
+    for (auto i : list) ++n[pface[i]];
+    std::string s;
+    for (auto [f, c] : n) s += (s.empty() ? "" : ", ") + std::to_string(f) + " (" + std::to_string(c) + ")";
+    return s;
+  };
+  std::vector<std::size_t> before;
+  for (std::size_t i = 0; i < P.size(); ++i)
+    if (bad_before[i]) before.push_back(i);
+  std::size_t first = bad_after.front();
+  for (auto i : bad_after)
+    if (bad_before[i]) {
+      first = i;
+      break;
+    }
+  bool moved_only = !bad_before[first];
+  if (moved_only && !before.empty()) first = before.front();
+  auto centre = [&](std::size_t i) { return mul(add(add(X(P[i][0]), X(P[i][1])), X(P[i][2])), 1.0 / 3); };
+  int F = pface[first];
+  std::string msg = "sweep: " + std::to_string(bad_after.size()) + " of " + std::to_string(P.size()) +
+                    " prisms stay inverted after untangling the layer, on wall faces " + by_face(bad_after) + "; " +
+                    std::to_string(before.size()) + " were inverted before it" +
+                    (before.empty() ? std::string() : ", on wall faces " + by_face(before));
+  if (moved_only) msg += " (those inverted at the end were valid before: untangling moved them)";
+  // wall node -> a junction whose end cross-section has it as a strip corner (PA or PB)
+  std::map<std::uint32_t, std::vector<const Junction*>> corner_of;
+  for (auto& j : J)
+    for (std::size_t k : {std::size_t(0), j.pa.size() - 1}) corner_of[j.pa[k]].push_back(&j), corner_of[j.pb[k]].push_back(&j);
+  auto foreign_end = [&](std::size_t i) {
+    for (int c = 0; c < 3; ++c) {
+      auto it = corner_of.find(P[i][c]);
+      if (it != corner_of.end())
+        for (auto* j : it->second)
+          if (pface[i] != j->A && pface[i] != j->B) return true;
+    }
+    return false;
+  };
+  std::size_t n_foreign = 0;
+  for (auto i : before) n_foreign += foreign_end(i) ? 1 : 0;
+  if (n_foreign)
+    msg += "; " + std::to_string(n_foreign) + " of those " + std::to_string(before.size()) +
+           " have a wall node that is a strip corner of a junction ending on their face, which is not one of its faces";
+  msg += ". First inverted before untangling: the prism on wall face " + std::to_string(F) + " at " + fmt(centre(first));
+  std::string hint;
+  for (int c = 0; c < 3 && hint.empty(); ++c) {
+    std::uint32_t w = P[first][c];
+    for (auto& j : J) {
+      if (F == j.A || F == j.B) continue;
+      for (std::size_t k : {std::size_t(0), j.pa.size() - 1})
+        if (w == j.pa[k] || w == j.pb[k]) {
+          hint = ": its wall node at " + fmt(X(w)) + " is a strip corner of the end cross-section of the junction along edge " +
+                 std::to_string(j.edge) + " (faces " + std::to_string(j.A) + " and " + std::to_string(j.B) +
+                 "), swept to that junction's outer corner, because the junction ends on face " + std::to_string(F) +
+                 ", which is not one of its faces (sweep.hpp, KNOWN LIMITATION). Make the edges of face " + std::to_string(F) +
+                 " at that end junctions too (shell.junction_angle_deg, shell.junction_with), or use shell.topology O";
+          break;
+        }
+      if (!hint.empty()) break;
+    }
+  }
+  if (hint.empty())
+    hint = " (the shell is too close to the wall or folds there); reduce shell.thickness or shell.max_gradient, or refine the "
+           "walls (balance.max_size)";
+  return msg + hint;
 }
 
 model::Mesh Builder::run() {

@@ -59,11 +59,28 @@
 // boundary, V keeps its own vertex image, and the hex's end face (V, PA, PC, PB) is not a face of
 // F's prisms: it bounds a thin pocket against their side faces (V, PA | PC, img V) and
 // (V, PB | PC, img V). tet puts a pyramid on that exposed quad, whose apex pokes through those
-// prisms (TetGen: intersecting facets, then signal 11). Where F is small (DLR-F6's pylon nose,
+// prisms (TetGen: intersecting facets, then signal 11; tet now refuses it first, see below). Where F is small (DLR-F6's pylon nose,
 // 11 mm) one of its triangles has both PA and PB, whose prism collapses (both swept to PC): sweep
 // refuses that, naming the junction and F, before untangling. A fix needs F's layer to close onto the end face (F's corner triangle (V, PA, PB) swept
 // to the end face, or the end cross-section laid on F); junction_angle_deg 170 makes DLR-F6's
 // pylon-nose edges junctions, which closes that loop but not the others.
+// Why the pocket cannot simply be filled (measured on the open U, where F is flush and convex
+// with A and B): F's prism over V-PA has the side face q1 = (V, PA, PC, img V) and the hex end
+// face is q3 = (V, PA, PC, PB); the pocket between them and q2 = (V, PB, PC, img V) is a real
+// volume (a bipyramid with apexes V and PC, equator PA, PB, img V: its three tets have one sign),
+// but q1 and q3 share the two consecutive edges V-PA and PA-PC, so as bilinear faces they are
+// tangent at PA (likewise q1, q2 at img V and q2, q3 at PB): any linear element on q1 and any on
+// q3 need their interiors on opposite sides of one plane there. Three pyramids on q1, q2, q3
+// with a common apex inside the pocket were tried: no apex (centroids, axis midpoint, blends)
+// gives even one valid set. So the fix is not a filler but a different block structure at V: F's
+// layer edge at V and the strip corners must not form two quads with two common edges, e.g. the
+// convex edges A|F and B|F next to V without averaged normals (a fan, or their own end block),
+// which is shell's decision (its direction fields and blocks) before sweep can mesh it. Until
+// then tet refuses the U's near field by name: the edge between the tops of F's two prisms at V
+// is used by four faces of its outer surface (the two prism tops and the pyramids on q1, q2).
+// On DLR-F6 at junction_angle_deg 170, 10 of the 13 prisms inverted before untangling have a
+// strip corner of such a junction (the first: the pylon's junction with the wing's lower surface
+// ends on the wing's blunt trailing-edge face); the untangling error counts them.
 // Wall nodes are swept to their shell images by the shell's fields (vertex value, edge field,
 // face grid: the shell's RULE FOR SWEEP); nodes of the strip boundaries map to PC.
 // Wall|other edges that are not junctions (topology O, or tags not in junction_with): the

@@ -415,6 +415,30 @@ class Builder {
                        first + ". The shell (outer faces of the near field) and the farfield/symmetry/periodic boundary "
                        "faces must close the far-field region: check that every boundary face is present and that they share "
                        "the nodes of the shell (no duplicate nodes).");
+    // a closed surface TetGen can fill is also a manifold: an edge of more than two faces is a
+    // pinch of the far-field region (e.g. a thin pocket of the shell between three quads that
+    // share an edge pairwise: a junction ending on a third wall face, sweep.hpp KNOWN
+    // LIMITATION), on which TetGen finds intersecting facets or crashes
+    std::size_t pinched = 0;
+    std::string pfirst;
+    for (std::size_t i = 0; i < edges.size();) {
+      std::size_t j = i + 1;
+      while (j < edges.size() && edges[j].first == edges[i].first) ++j;
+      if (j - i > 2 && !pinched++) {
+        std::string fs;
+        for (std::size_t k = i; k < j && k < i + 4; ++k) fs += (k > i ? "; " : "") + facet_name(edges[k].second);
+        pfirst = "the edge " + where(node(edges[i].first[0])) + " - " + where(node(edges[i].first[1])) + " is used by " +
+                 std::to_string(j - i) + " faces (" + fs + ")";
+      }
+      i = j;
+    }
+    if (pinched)
+      throw StageError("tet: the far-field boundary is not a manifold: " + std::to_string(pinched) +
+                       " edge(s) are used by more than two of its faces; " + pfirst +
+                       ". The near field's outer surface touches itself there (a pocket or a pinch), which TetGen cannot mesh. "
+                       "Where a junction ends on a wall face that is not one of its faces (stages/sweep/sweep.hpp, KNOWN "
+                       "LIMITATION) make that face's edges junctions too (shell.junction_angle_deg, shell.junction_with) or use "
+                       "shell.topology O; otherwise fix the near field upstream (sweep).");
   }
 
   void holes() {

@@ -12,7 +12,10 @@
 //     outer side of the boundary layer), and
 //   - the boundary faces that are not faces of a near-field element (far field, symmetry,
 //     periodic, or walls left without a boundary layer).
-// Together they must form a closed surface (each edge used by an even number of faces).
+// Together they must form a closed manifold surface: each edge used by exactly two faces (an odd
+// count is an open surface, more than two a pinch or pocket of the shell, e.g. where a junction
+// ends on a third wall face: stages/sweep/sweep.hpp, KNOWN LIMITATION; both are refused before
+// TetGen, which would report intersecting facets or crash on them).
 // Quad faces of the shell get a pyramid each (apex on the outward normal of the quad at
 // `pyramid_height` times its mean edge length; its four triangles go into the PLC). Quad
 // boundary faces not covered by the near field are split into two triangles along the

@@ -29,8 +29,9 @@ nlohmann::json stage_stats(const fs::path& out, const std::string& stage) {
   return nlohmann::json::object();
 }
 
-// runs the ledge workflow up to `last` (sweep or tet); returns the output folder
-fs::path run_ledge(const std::string& tag, bool open_u, const std::string& last) {
+// runs the ledge workflow up to `last` (sweep or tet); returns the output folder. With `result`,
+// the run's exit code and output go there instead of being required to succeed.
+fs::path run_ledge(const std::string& tag, bool open_u, const std::string& last, mftest::ShellResult* result = nullptr) {
   fs::path dir = mftest::temp_dir(tag);
   sweeptest::write_ledge_body(dir / "ledge.brep", 0.2, open_u);
   std::string wf = "meshflow: 1\nname: ledge\nstages:\n"
@@ -45,6 +46,10 @@ fs::path run_ledge(const std::string& tag, bool open_u, const std::string& last)
   mftest::write_text(dir / "wf.yaml", wf);
   auto r = mftest::sh(std::string(MESHFLOW_EXE) + " run " + (dir / "wf.yaml").string() + " --cache " + (dir / "cache").string() +
                       " --out " + (dir / "out").string() + " 2>&1");
+  if (result) {
+    *result = r;
+    return dir / "out";
+  }
   INFO(r.out);
   REQUIRE(r.code == 0);
   return dir / "out";
@@ -96,11 +101,22 @@ TEST_CASE("junction along a ledge narrower than its strip (closed ring): thickne
 }
 
 // The open U: the junctions end where the upper block is flush with the lower one, at a third
-// face (the common side y = 4), which is not part of the junction. sweep now meshes it; tet is
-// not run here: TetGen stops (signal 11) on this near field's outer surface, where the junction
-// ends at that third face (as DLR-F6's pylon ends on the nacelle), the next cause to fix.
-TEST_CASE("junction along a ledge narrower than its strip (open U, junction ends at a third face): sweep gives a valid near field") {
+// face (the common side y = 4), which is not part of the junction. sweep meshes it. Its outer
+// surface is not a manifold there: the hex's end face and the side faces of the third face's two
+// prisms at the junction's end vertex bound a pocket, and the edge between those prisms' tops is
+// used by four faces (sweep.hpp, KNOWN LIMITATION: no linear element can fill the pocket). tet
+// refuses that before TetGen, naming the edge and the limitation (TetGen stopped with signal 11),
+// at both ends of the U. When the block structure there is fixed, require tet to pass here.
+TEST_CASE("junction along a ledge narrower than its strip (open U, junction ends at a third face): sweep gives a valid near field, tet names the pinched outer surface") {
   fs::path out = run_ledge("jw-u", true, "sweep");
   check_shell(out);
   check_mesh(out / "mesh.msh");
+  mftest::ShellResult r;
+  run_ledge("jw-u-tet", true, "tet", &r);
+  INFO(r.out);
+  CHECK(r.code == 1);
+  CHECK(r.out.find("tet: the far-field boundary is not a manifold: 2 edge(s) are used by more than two of its faces") !=
+        std::string::npos);
+  CHECK(r.out.find("is used by 4 faces") != std::string::npos);
+  CHECK(r.out.find("signal") == std::string::npos);
 }
