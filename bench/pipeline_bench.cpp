@@ -14,6 +14,8 @@
 #include "stages/model/quality.hpp"
 #include "stages/split/split.hpp"
 
+#include "bench_util.hpp"
+
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
@@ -31,24 +33,12 @@
 
 namespace fs = std::filesystem;
 using nlohmann::json;
-using Clock = std::chrono::steady_clock;
+using meshflow::bench::Clock;
+using meshflow::bench::fmt;
+using meshflow::bench::median;
+using meshflow::bench::secs;
 
 namespace {
-
-double secs(Clock::time_point a) { return std::chrono::duration<double>(Clock::now() - a).count(); }
-
-std::string fmt(double v, int prec = 2) {
-  std::ostringstream o;
-  o << std::fixed << std::setprecision(prec) << v;
-  return o.str();
-}
-
-double median(std::vector<double> v) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  size_t n = v.size();
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
 
 std::string list(const std::vector<double>& v, int prec = 2) {
   std::string s;

@@ -14,6 +14,8 @@
 // 1500) or fails is reported with how far it got (the runner's log lines).
 // Writes bench/results/scaling.md and bench/results/scaling.json, then draws
 // bench/results/scaling.png with bench/plot.py.
+#include "bench_util.hpp"
+
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
@@ -33,24 +35,12 @@
 
 namespace fs = std::filesystem;
 using nlohmann::json;
-using Clock = std::chrono::steady_clock;
+using meshflow::bench::Clock;
+using meshflow::bench::fmt;
+using meshflow::bench::median;
+using meshflow::bench::secs;
 
 namespace {
-
-double secs(Clock::time_point a) { return std::chrono::duration<double>(Clock::now() - a).count(); }
-
-std::string fmt(double v, int prec = 2) {
-  std::ostringstream o;
-  o << std::fixed << std::setprecision(prec) << v;
-  return o.str();
-}
-
-double median(std::vector<double> v) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  size_t n = v.size();
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
 
 struct Run {
   double wall = 0;
