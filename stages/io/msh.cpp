@@ -70,10 +70,9 @@ void hint_huge_pages(V& v) {
   if (e2 > b2) ::madvise(reinterpret_cast<void*>(b2), e2 - b2, MADV_HUGEPAGE);
 }
 
-void finish_tags(Mesh& m, std::vector<std::uint64_t>& node_tags) {
-  bool trivial = true;
-  for (size_t i = 0; i < node_tags.size() && trivial; ++i) trivial = node_tags[i] == i + 1;
-  if (!trivial) m.node_tags = node_tags;
+// `identity`: the node tags are 1..n in order (TagIndex::identity), so the mesh keeps none.
+void finish_tags(Mesh& m, std::vector<std::uint64_t>& node_tags, bool identity) {
+  if (!identity) m.node_tags = node_tags;
   std::uint64_t next = 1;
   bool etrivial = true;
   for (auto& b : m.blocks)
@@ -169,37 +168,10 @@ Mesh read_msh4(Cursor& c, bool binary, const std::string& path) {
           m.node_u.assign(first, NAN);
           m.node_v.assign(first, NAN);
         }
-        if (binary && c.has(n * 8 * (4 + npar))) {
-          // fast path (the whole block is there): tags, then x y z (u v) per node, copied in bulk
-          node_tags.resize(first + n);
-          std::memcpy(node_tags.data() + first, c.at(), n * 8);
-          c.skip(n * 8);
-          const char* p = c.at();
-          const size_t rec = 8 * (3 + npar);
-          for (std::uint64_t i = 0; i < n; ++i, p += rec) {
-            double v[6] = {0, 0, 0, NAN, NAN, NAN};
-            std::memcpy(v, p, rec);
-            if (!std::isfinite(v[0]) || !std::isfinite(v[1]) || !std::isfinite(v[2]))
-              c.fail("node " + std::to_string(node_tags[first + i]) + " has a non-finite coordinate", binary,
-                     c.pos() + rec * i);
-            m.x.push_back(v[0]), m.y.push_back(v[1]), m.z.push_back(v[2]);
-            if (any_param) {
-              m.node_u.push_back(npar >= 1 && dim <= 2 ? v[3] : NAN);
-              m.node_v.push_back(npar >= 2 && dim <= 2 ? v[4] : NAN);
-            }
-          }
-          c.skip(n * rec);
-          m.node_entity_dim.insert(m.node_entity_dim.end(), n, dim);
-          m.node_entity_tag.insert(m.node_entity_tag.end(), n, tag);
-          continue;
-        }
-        for (std::uint64_t i = 0; i < n; ++i) node_tags.push_back(S("node tag"));
-        for (std::uint64_t i = 0; i < n; ++i) {
-          size_t at = c.pos();
-          double p[6] = {0, 0, 0, NAN, NAN, NAN};
-          for (int k = 0; k < 3 + npar; ++k) p[k] = D("node coordinate");
+        // node i of the file (its tag read), coordinates (x y z u v) starting at byte/char `at`
+        auto add_node = [&](const double* p, size_t i, size_t at) {
           if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2]))
-            c.fail("node " + std::to_string(node_tags[first + i]) + " has a non-finite coordinate", binary, at);
+            c.fail("node " + std::to_string(node_tags[i]) + " has a non-finite coordinate", binary, at);
           m.x.push_back(p[0]), m.y.push_back(p[1]), m.z.push_back(p[2]);
           if (any_param) {
             m.node_u.push_back(npar >= 1 && dim <= 2 ? p[3] : NAN);
@@ -207,6 +179,27 @@ Mesh read_msh4(Cursor& c, bool binary, const std::string& path) {
           }
           m.node_entity_dim.push_back(dim);
           m.node_entity_tag.push_back(tag);
+        };
+        if (binary && c.has(n * 8 * (4 + npar))) {
+          // fast path (the whole block is there): tags, then x y z (u v) per node, copied in bulk
+          node_tags.resize(first + n);
+          std::memcpy(node_tags.data() + first, c.at(), n * 8);
+          c.skip(n * 8);
+          const size_t rec = 8 * (3 + npar);
+          for (std::uint64_t i = 0; i < n; ++i) {
+            double v[6] = {0, 0, 0, NAN, NAN, NAN};
+            std::memcpy(v, c.at() + rec * i, rec);
+            add_node(v, first + i, c.pos() + rec * i);
+          }
+          c.skip(n * rec);
+          continue;
+        }
+        for (std::uint64_t i = 0; i < n; ++i) node_tags.push_back(S("node tag"));
+        for (std::uint64_t i = 0; i < n; ++i) {
+          size_t at = c.pos();
+          double p[6] = {0, 0, 0, NAN, NAN, NAN};
+          for (int k = 0; k < 3 + npar; ++k) p[k] = D("node coordinate");
+          add_node(p, first + i, at);
         }
       }
       if (node_tags.size() != nnodes)
@@ -321,7 +314,7 @@ Mesh read_msh4(Cursor& c, bool binary, const std::string& path) {
     }
   }
   if (!have_nodes) throw MeshIOError(path + ": no $Nodes section");
-  finish_tags(m, node_tags);
+  finish_tags(m, node_tags, index.identity);
   return m;
 }
 
@@ -427,7 +420,7 @@ Mesh read_msh2(Cursor& c, const std::string& path) {
   for (auto& b : m.blocks)
     for (auto t : b.tags) etrivial = etrivial && t == next++;
   (void)etrivial;
-  finish_tags(m, node_tags);
+  finish_tags(m, node_tags, index.identity);
   return m;
 }
 
