@@ -628,8 +628,8 @@ struct JacobianSpace {
       // (amplification x the rounding of the samples, scaled per element and per direction);
       // where that bound would exceed 14% of det J's scale the transform cannot certify
       // anything useful: hexahedra of order >= 5, proven by Bernstein arithmetic instead
-      // (hex_bezier_validity), prisms of order >= 6 (sampled); pyramids by Bernstein arithmetic in collapsed
-      // coordinates (pyramid_bezier_validity): their det J is not a polynomial in (x, y, z).
+      // (hex_det_bezier), prisms of order >= 6 (sampled); pyramids by Bernstein arithmetic in collapsed
+      // coordinates (pyramid_det_bezier): their det J is not a polynomial in (x, y, z).
       auto rowsum = [](const Eigen::MatrixXd& A) { return A.cwiseAbs().rowwise().sum().maxCoeff(); };
       amplification = T.size() ? rowsum(T)
                       : s == Shape::Prism ? rowsum(Ta) * rowsum(Tb)
@@ -1079,14 +1079,6 @@ void tensor_bezier_validity(Tensor det, double err, ElementQuality& q) {
   }
 }
 
-// Proves validity of a hex by its det J coefficients.
-void hex_bezier_validity(int P, const double* X, ElementQuality& q) {
-  Tensor det;
-  double err = 0;
-  hex_det_bezier(P, X, det, err);
-  tensor_bezier_validity(std::move(det), err, q);
-}
-
 // ---- Pyramids: det J in Bernstein form in collapsed coordinates ----
 // The pyramid (base [-1,1]^2 at z = 0, apex (0,0,1)) is the image of the cube (a, b, c) in
 // [-1,1]^2 x [0,1] under the collapse x = (1-c) a, y = (1-c) b, z = c. Bergot's space (basis.hpp)
@@ -1250,14 +1242,6 @@ void pyramid_det_bezier(int P, const double* X, Tensor& det, double& err) {
   det_from_columns(P, D, DE, det, err);
 }
 
-// Proves validity of a pyramid by its det J coefficients in collapsed coordinates.
-void pyramid_bezier_validity(int P, const double* X, ElementQuality& q) {
-  Tensor det;
-  double err = 0;
-  pyramid_det_bezier(P, X, det, err);
-  tensor_bezier_validity(std::move(det), err, q);
-}
-
 // ---- Tets: the perturbation proof (the fast path of the validity check) ----
 // J(xi) of an order-P tet is a matrix of polynomials of degree P-1; their Bernstein
 // coefficients B_a (m per entry) come from J at the nodes of the order P-1 lattice (Hs X, which
@@ -1337,12 +1321,15 @@ void classify(const JacobianSpace& sp, const double* X, const double* normal, co
   q.aspect_ratio = aspect(sp.shape, X);
   if (proven) {  // tet_perturbation_proof (a sample <= 0 would contradict it: only by rounding)
     q.valid = q.min_det > 0;
-  } else if (!sp.bezier && sp.shape == Shape::Hex && q.min_det > 0) {
-    hex_bezier_validity(sp.order, X, q);  // Bernstein arithmetic (proof), see above
-  } else if (!sp.bezier && sp.shape == Shape::Pyramid && q.min_det > 0) {
-    pyramid_bezier_validity(sp.order, X, q);  // collapsed coordinates (proof), see above
   } else if (!sp.bezier && (sp.shape == Shape::Hex || sp.shape == Shape::Pyramid)) {
-    q.valid = false;  // a sample with det J <= 0
+    if (q.min_det <= 0) {
+      q.valid = false;  // a sample with det J <= 0
+    } else {  // proof by Bernstein arithmetic (pyramids in collapsed coordinates), see above
+      Tensor det;
+      double err = 0;
+      (sp.shape == Shape::Hex ? hex_det_bezier : pyramid_det_bezier)(sp.order, X, det, err);
+      tensor_bezier_validity(std::move(det), err, q);
+    }
   } else if (!sp.bezier) {
     q.sampled = true;
     q.valid = q.min_det > 0;
