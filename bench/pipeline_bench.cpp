@@ -36,7 +36,10 @@ using nlohmann::json;
 using meshflow::bench::Clock;
 using meshflow::bench::fmt;
 using meshflow::bench::median;
+using meshflow::bench::Run;
 using meshflow::bench::secs;
+using meshflow::bench::stage;
+using meshflow::bench::volume_elements;
 
 namespace {
 
@@ -46,22 +49,8 @@ std::string list(const std::vector<double>& v, int prec = 2) {
   return s;
 }
 
-struct Run {
-  double wall = 0;
-  json report;
-  int code = 0;
-};
-
 Run run(const fs::path& dir, const std::string& workflow, const std::string& extra) {
-  std::string cmd = "cd " + dir.string() + " && " + MESHFLOW_EXE + " run " + workflow + " --cache " + (dir / "cache").string() +
-                    " --out " + (dir / "out").string() + " " + extra + " > " + (dir / "log.txt").string() + " 2>&1";
-  auto t0 = Clock::now();
-  Run r;
-  r.code = std::system(cmd.c_str());
-  r.wall = secs(t0);
-  std::ifstream in(dir / "out" / "report.json");
-  if (in) r.report = json::parse(in);
-  return r;
+  return meshflow::bench::run_meshflow(dir, workflow, extra);
 }
 
 // Restores dir/cache and dir/out to the saved cold state (hard links: the cache and the
@@ -85,18 +74,6 @@ std::vector<std::string> ran(const json& rep) {
   for (auto& st : rep.at("stages"))
     if (st.at("status") == "ran") s.push_back(st.at("name").get<std::string>());
   return s;
-}
-
-const json* stage(const json& rep, const std::string& name) {
-  for (auto& s : rep.at("stages"))
-    if (s.at("name") == name) return &s;
-  return nullptr;
-}
-
-long volume_elements(const json& mesh_stats) {
-  long n = 0;
-  for (const char* k : {"tet", "prism", "hex", "pyramid"}) n += mesh_stats.at("elements").value(k, 0L);
-  return n;
 }
 
 // The artifact file of a stage of a run, from its cache action entry.

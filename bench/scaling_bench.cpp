@@ -38,45 +38,15 @@ using nlohmann::json;
 using meshflow::bench::Clock;
 using meshflow::bench::fmt;
 using meshflow::bench::median;
+using meshflow::bench::Run;
 using meshflow::bench::secs;
+using meshflow::bench::stage;
+using meshflow::bench::volume_elements;
 
 namespace {
 
-struct Run {
-  double wall = 0;
-  json report;
-  int code = 0;
-  std::string log;
-};
-
 Run run(const fs::path& dir, const std::string& extra, int timeout_s) {
-  std::string cmd = "cd " + dir.string() + " && timeout -s TERM " + std::to_string(timeout_s) + " " + MESHFLOW_EXE + " run " +
-                    MESHFLOW_SOURCE_DIR + "/workflows/naca_wingtip.yaml --cache " + (dir / "cache").string() + " --out " +
-                    (dir / "out").string() + " " + extra + " > " + (dir / "log.txt").string() + " 2>&1";
-  auto t0 = Clock::now();
-  Run r;
-  int st = std::system(cmd.c_str());
-  r.wall = secs(t0);
-  r.code = WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
-  std::ifstream in(dir / "out" / "report.json");
-  if (in) r.report = json::parse(in);
-  std::ifstream lg(dir / "log.txt");
-  std::stringstream ss;
-  ss << lg.rdbuf();
-  r.log = ss.str();
-  return r;
-}
-
-const json* stage(const json& rep, const std::string& name) {
-  for (auto& s : rep.at("stages"))
-    if (s.at("name") == name) return &s;
-  return nullptr;
-}
-
-long volume_elements(const json& m) {
-  long n = 0;
-  for (const char* k : {"tet", "prism", "hex", "pyramid"}) n += m.at("elements").value(k, 0L);
-  return n;
+  return meshflow::bench::run_meshflow(dir, std::string(MESHFLOW_SOURCE_DIR) + "/workflows/naca_wingtip.yaml", extra, timeout_s);
 }
 
 // Least squares of log y = a + b log x: the exponent b (NaN with fewer than 2 usable points).
