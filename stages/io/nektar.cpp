@@ -1037,10 +1037,11 @@ void write_nektar(const Mesh& m, const std::filesystem::path& fp) {
     return !(a.first == c.first) ? a.first < c.first : seen_before(a.second, c.second);
   });
   faces.erase(std::unique(faces.begin(), faces.end(), [](const auto& a, const auto& c) { return a.first == c.first; }), faces.end());
+  // id of the edge a-b (-1 if no element has it)
   auto eid = [&](std::uint32_t a, std::uint32_t c) -> long {
     const EdgeKey key{std::min(a, c), std::max(a, c)};
     auto it = std::lower_bound(edges.begin(), edges.end(), key, [](const auto& x, const EdgeKey& y) { return x.first < y; });
-    return it - edges.begin();
+    return it != edges.end() && it->first == key ? it - edges.begin() : -1;
   };
   auto find_face = [&](const FaceKey& key) -> long {
     auto it = std::lower_bound(faces.begin(), faces.end(), key, [](const auto& x, const FaceKey& y) { return x.first < y; });
@@ -1188,16 +1189,9 @@ void write_nektar(const Mesh& m, const std::filesystem::path& fp) {
     if (dimension(b.shape) != dim - 1) continue;
     for (size_t e = 0; e < b.size(); ++e) {
       const std::uint32_t* nd = b.element(e);
-      if (dim == 3) {
-        std::vector<int> all(num_vertices(b.shape));
-        for (int v = 0; v < (int)all.size(); ++v) all[v] = v;
-        const long id = find_face(face_key(nd, all.data(), (int)all.size()));
-        if (id >= 0) bnd[b.entity_tag].push_back(id);
-      } else {
-        const EdgeKey key{std::min(nd[0], nd[1]), std::max(nd[0], nd[1])};
-        auto it = std::lower_bound(edges.begin(), edges.end(), key, [](const auto& x, const EdgeKey& y) { return x.first < y; });
-        if (it != edges.end() && it->first == key) bnd[b.entity_tag].push_back(it - edges.begin());
-      }
+      static const int kVertices[4] = {0, 1, 2, 3};
+      const long id = dim == 3 ? find_face(face_key(nd, kVertices, num_vertices(b.shape))) : eid(nd[0], nd[1]);
+      if (id >= 0) bnd[b.entity_tag].push_back(id);
     }
   }
   for (auto& [tag, ids] : bnd) {
