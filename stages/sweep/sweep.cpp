@@ -1482,23 +1482,11 @@ void Builder::volume() {
   std::vector<char> bad_before(P.size(), 0);
   for (std::size_t i = 0; i < P.size(); ++i) bad_before[i] = !prism_ok(P[i]);
   untangle(P);
-  {
-    std::vector<std::size_t> bad_after;
-    for (std::size_t i = 0; i < P.size(); ++i)
-      if (!prism_ok(P[i])) bad_after.push_back(i);
-    if (!bad_after.empty()) throw StageError(untangle_failure(P, pface, bad_before, bad_after));
-  }
+  std::vector<std::size_t> bad_after;
+  for (std::size_t i = 0; i < P.size(); ++i)
+    if (!prism_ok(P[i])) bad_after.push_back(i);
   if (std::getenv("MESHFLOW_SWEEP_DEBUG")) {
-    int bad = 0;
-    for (std::size_t i = 0; i < P.size(); ++i) {
-      double X3[18], Y3[18];
-      std::vector<std::uint32_t> q{P[i][0], P[i][2], P[i][1], P[i][3], P[i][5], P[i][4]};
-      for (int c = 0; c < 6; ++c) {
-        X3[3 * c] = m.x[P[i][c]], X3[3 * c + 1] = m.y[P[i][c]], X3[3 * c + 2] = m.z[P[i][c]];
-        Y3[3 * c] = m.x[q[c]], Y3[3 * c + 1] = m.y[q[c]], Y3[3 * c + 2] = m.z[q[c]];
-      }
-      if (model::element_quality(model::Shape::Prism, 1, X3).valid || model::element_quality(model::Shape::Prism, 1, Y3).valid) continue;
-      ++bad;
+    for (auto i : bad_after) {
       std::string l = "invalid after untangle: face " + std::to_string(pface[i]) + ":";
       for (int c = 0; c < 3; ++c) {
         auto w = P[i][c];
@@ -1509,8 +1497,9 @@ void Builder::volume() {
       }
       log(l);
     }
-    log("invalid prisms after untangle: " + std::to_string(bad));
+    log("invalid prisms after untangle: " + std::to_string(bad_after.size()));
   }
+  if (!bad_after.empty()) throw StageError(untangle_failure(P, pface, bad_before, bad_after));
   auto& prisms = m.block(model::Shape::Prism, 1, 3, 1);
   for (std::size_t i = 0; i < P.size(); ++i) {
     valid_or_flip(model::Shape::Prism, P[i], {0, 2, 1, 3, 5, 4}, "prism on wall face " + std::to_string(pface[i]));
@@ -1579,39 +1568,31 @@ std::string Builder::untangle_failure(const std::vector<std::vector<std::uint32_
   std::map<std::uint32_t, std::vector<const Junction*>> corner_of;
   for (auto& j : J)
     for (std::size_t k : {std::size_t(0), j.pa.size() - 1}) corner_of[j.pa[k]].push_back(&j), corner_of[j.pb[k]].push_back(&j);
-  auto foreign_end = [&](std::size_t i) {
+  // the first wall node of prism i that is a strip corner of a junction ending on the prism's face
+  // without it being one of the junction's faces, and that junction (null if none)
+  auto foreign_end = [&](std::size_t i) -> std::pair<std::uint32_t, const Junction*> {
     for (int c = 0; c < 3; ++c) {
       auto it = corner_of.find(P[i][c]);
       if (it != corner_of.end())
         for (auto* j : it->second)
-          if (pface[i] != j->A && pface[i] != j->B) return true;
+          if (pface[i] != j->A && pface[i] != j->B) return {P[i][c], j};
     }
-    return false;
+    return {0, nullptr};
   };
   std::size_t n_foreign = 0;
-  for (auto i : before) n_foreign += foreign_end(i) ? 1 : 0;
+  for (auto i : before) n_foreign += foreign_end(i).second ? 1 : 0;
   if (n_foreign)
     msg += "; " + std::to_string(n_foreign) + " of those " + std::to_string(before.size()) +
            " have a wall node that is a strip corner of a junction ending on their face, which is not one of its faces";
   msg += ". First inverted before untangling: the prism on wall face " + std::to_string(F) + " at " + fmt(centre(first));
   std::string hint;
-  for (int c = 0; c < 3 && hint.empty(); ++c) {
-    std::uint32_t w = P[first][c];
-    for (auto& j : J) {
-      if (F == j.A || F == j.B) continue;
-      for (std::size_t k : {std::size_t(0), j.pa.size() - 1})
-        if (w == j.pa[k] || w == j.pb[k]) {
-          hint = ": its wall node at " + fmt(X(w)) + " is a strip corner of the end cross-section of the junction along edge " +
-                 std::to_string(j.edge) + " (faces " + std::to_string(j.A) + " and " + std::to_string(j.B) +
-                 "), swept to that junction's outer corner, because the junction ends on face " + std::to_string(F) +
-                 ", which is not one of its faces (sweep.hpp, KNOWN LIMITATION). Make the edges of face " + std::to_string(F) +
-                 " at that end junctions too (shell.junction_angle_deg, shell.junction_with), or use shell.topology O";
-          break;
-        }
-      if (!hint.empty()) break;
-    }
-  }
-  if (hint.empty())
+  if (auto [w, j] = foreign_end(first); j)
+    hint = ": its wall node at " + fmt(X(w)) + " is a strip corner of the end cross-section of the junction along edge " +
+           std::to_string(j->edge) + " (faces " + std::to_string(j->A) + " and " + std::to_string(j->B) +
+           "), swept to that junction's outer corner, because the junction ends on face " + std::to_string(F) +
+           ", which is not one of its faces (sweep.hpp, KNOWN LIMITATION). Make the edges of face " + std::to_string(F) +
+           " at that end junctions too (shell.junction_angle_deg, shell.junction_with), or use shell.topology O";
+  else
     hint = " (the shell is too close to the wall or folds there); reduce shell.thickness or shell.max_gradient, or refine the "
            "walls (balance.max_size)";
   return msg + hint;
