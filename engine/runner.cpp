@@ -275,6 +275,12 @@ void materialise(const Workflow& wf, const RunResult& rr, const fs::path& out_di
       try {
         produce(tmp);
         fs::rename(tmp, target);
+        // rename(2) of a hard link onto another link of the same file does nothing and leaves
+        // the source: an unformatted output re-linked to the cache object it already links to
+        // (report.json gone or from another workflow of the same name) would leave its
+        // ".NAME.tmp.*" beside it
+        std::error_code ec;
+        if (fs::exists(tmp, ec)) fs::remove(tmp, ec);
       } catch (...) {
         std::error_code ec;
         fs::remove(tmp, ec);

@@ -8,6 +8,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
 #include <chrono>
 #include <csignal>
 #include <cstdlib>
@@ -81,6 +82,24 @@ TEST_CASE("a second run is all cache hits and calls no stage function") {
   for (auto& s : report2["stages"]) CHECK(s["status"] == "cached");
   CHECK(report2["stages"][2]["stats"]["bytes"] == 10);  // stats of the cached run are kept
   CHECK(read_text(f.out / "final.upper.txt") == "ABABAB-B-C");
+}
+
+TEST_CASE("outputs re-written over themselves leave no temporary file in the output folder") {
+  Fixture f;
+  REQUIRE(f.run().code == 0);
+  // without report.json the runner cannot tell that raw.txt is already the cache object's link:
+  // it links it again (rename onto the same inode, which leaves the source)
+  fs::remove(f.out / "report.json");
+  auto r = f.run();
+  INFO(r.out, r.err);
+  REQUIRE(r.code == 0);
+  std::vector<std::string> names;
+  for (auto& e : fs::directory_iterator(f.out)) names.push_back(e.path().filename().string());
+  std::sort(names.begin(), names.end());
+  std::string all;
+  for (auto& n : names) all += n + " ";
+  CHECK(all == "final.upper.txt raw.txt report.json ");
+  CHECK(read_text(f.out / "raw.txt") == "ababab-d");
 }
 
 TEST_CASE("--set on one stage re-runs it and its descendants only") {
