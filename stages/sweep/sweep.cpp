@@ -270,6 +270,7 @@ class Builder {
   std::string untangle_failure(const std::vector<std::vector<std::uint32_t>>& P, const std::vector<int>& pface,
                                const std::vector<char>& bad_before, const std::vector<std::size_t>& bad_after);
   void untangle(std::vector<std::vector<std::uint32_t>>& prisms);
+  void clear_crossings(const std::vector<std::vector<std::uint32_t>>& prisms);
 };
 
 double Builder::edge_h(int e, double t, double hmax) const {
@@ -1224,6 +1225,213 @@ void Builder::untangle(std::vector<std::vector<std::uint32_t>>& P) {
   round(" (junction corners moved too)");
 }
 
+// ── crossings of the near field's outer surface ────────────────────────────────────────
+// The elements are valid one by one, but the outer surface of the near field (the far field's
+// boundary for tet) can still cross itself where the layers of two walls fan into each other:
+// Rotor 67's hub and casing junctions around the blade's 1e-3 ft leading and trailing edges,
+// where the blade's layer fans out around the nose by its own thickness while the hub's layer
+// next to the junction strip is as thick. Only the discrete surface decides (the shell stage's
+// fields agree with it up to their grid), so it is checked here: every face of the near field
+// that is no face of two of its elements and has a node inside the volume, with every boundary
+// face (walls, strips, the faces the layer slides on, far-field/periodic/symmetry faces), by
+// shell::self_intersections (CGAL AABB tree, exact predicates; faces sharing a node are not
+// tested, quads as two triangles). Where two cross, the layer is thinned at the volume nodes of
+// both: each such node's height over its base (the wall node it was swept from; for a junction
+// corner PC the edge node P0, so the hex's cross-section shrinks towards its diagonal) is scaled
+// by 0.8 per round, down to `kMinScale` of the original, and the scale is made 0.15-Lipschitz in
+// steps along the outer surface so the thinning fades out instead of leaving a step. A round
+// that would make an element invalid is undone at that element's nodes, which are then kept.
+// Rounds repeat until nothing crosses or nothing can move; what is left is reported (stats
+// outer_crossings) and tet refuses it by name.
+void Builder::clear_crossings(const std::vector<std::vector<std::uint32_t>>& P) {
+  constexpr double kShrink = 0.8, kMinScale = 0.25, kLipschitz = 0.15;
+  constexpr int kRounds = 40;
+  std::vector<std::vector<std::uint32_t>> H;
+  for (auto& j : J)
+    for (std::size_t k = 0; k + 1 < j.p0.size(); ++k)
+      H.push_back({j.p0[k], j.p0[k + 1], j.pa[k + 1], j.pa[k], j.pb[k], j.pb[k + 1], j.pc[k + 1], j.pc[k]});
+  // faces of the elements (Gmsh order), counted by their sorted nodes
+  static const std::vector<std::vector<int>> prism_faces{{0, 1, 2}, {3, 4, 5}, {0, 1, 4, 3}, {1, 2, 5, 4}, {2, 0, 3, 5}};
+  static const std::vector<std::vector<int>> hex_faces{{0, 1, 2, 3}, {4, 5, 6, 7}, {0, 1, 5, 4},
+                                                       {1, 2, 6, 5}, {2, 3, 7, 6}, {3, 0, 4, 7}};
+  std::vector<std::pair<std::vector<std::uint32_t>, std::vector<std::uint32_t>>> faces;  // (sorted key, face)
+  auto add_faces = [&](const std::vector<std::vector<std::uint32_t>>& E, const std::vector<std::vector<int>>& F) {
+    for (auto& e : E)
+      for (auto& f : F) {
+        std::vector<std::uint32_t> v;
+        for (int i : f) v.push_back(e[i]);
+        auto k = v;
+        std::sort(k.begin(), k.end());
+        faces.push_back({std::move(k), std::move(v)});
+      }
+  };
+  add_faces(P, prism_faces);
+  add_faces(H, hex_faces);
+  std::sort(faces.begin(), faces.end());
+  std::vector<std::array<std::int32_t, 3>> tris;
+  std::vector<char> outer_tri;  // per triangle: part of the outer surface (else a boundary face)
+  auto add_poly = [&](const std::vector<std::uint32_t>& v, bool outer) {
+    for (std::size_t i = 1; i + 1 < v.size(); ++i) {
+      tris.push_back({static_cast<std::int32_t>(v[0]), static_cast<std::int32_t>(v[i]), static_cast<std::int32_t>(v[i + 1])});
+      outer_tri.push_back(outer);
+    }
+  };
+  std::vector<std::vector<std::uint32_t>> outer;
+  for (std::size_t i = 0; i < faces.size();) {
+    std::size_t j = i + 1;
+    while (j < faces.size() && faces[j].first == faces[i].first) ++j;
+    bool inside = false;
+    for (auto n : faces[i].second) inside = inside || m.node_entity_dim[n] == 3;
+    if (j == i + 1 && inside) outer.push_back(faces[i].second), add_poly(faces[i].second, true);
+    i = j;
+  }
+  for (int f = 0; f < nf; ++f)
+    for (auto& t : face_tris[f]) add_poly({t[0], t[1], t[2]}, false);
+  for (auto& h : H) add_poly({h[0], h[1], h[2], h[3]}, false), add_poly({h[0], h[1], h[5], h[4]}, false);
+  for (int e = 0; e < ne; ++e)
+    if (slide_other[e] >= 0)
+      for (std::size_t k = 0; k + 1 < en[e].size(); ++k)
+        add_poly({en[e][k], en[e][k + 1], image.at(en[e][k + 1]), image.at(en[e][k])}, false);
+  // the base of every movable node: the wall node it was swept from (PC: its P0)
+  std::map<std::uint32_t, std::uint32_t> base;
+  for (auto& p : P)
+    for (int i = 0; i < 3; ++i)
+      if (p[i + 3] != p[i] && m.node_entity_dim[p[i + 3]] == 3) base[p[i + 3]] = p[i];
+  for (auto& j : J)
+    for (std::size_t k = 0; k < j.pc.size(); ++k)
+      if (j.pc[k] != kNone && m.node_entity_dim[j.pc[k]] == 3) base[j.pc[k]] = j.p0[k];
+  // outer-surface neighbours (for the Lipschitz fade) and the elements at each node
+  std::map<std::uint32_t, std::set<std::uint32_t>> nb;
+  for (auto& f : outer)
+    for (std::size_t i = 0; i < f.size(); ++i) {
+      auto a = f[i], b = f[(i + 1) % f.size()];
+      if (base.count(a) && base.count(b)) nb[a].insert(b), nb[b].insert(a);
+    }
+  std::map<std::uint32_t, std::vector<std::pair<char, std::uint32_t>>> elems;  // node -> (prism 0 / hex 1, index)
+  for (std::uint32_t i = 0; i < P.size(); ++i)
+    for (auto n : P[i]) if (base.count(n)) elems[n].push_back({0, i});
+  for (std::uint32_t i = 0; i < H.size(); ++i)
+    for (auto n : H[i]) if (base.count(n)) elems[n].push_back({1, i});
+  auto valid = [&](char kind, std::uint32_t i) {
+    const auto& e = kind ? H[i] : P[i];
+    static const int pf[6] = {0, 2, 1, 3, 5, 4}, hf[8] = {0, 3, 2, 1, 4, 7, 6, 5};
+    std::vector<double> A, B;
+    for (std::size_t c = 0; c < e.size(); ++c) {
+      auto n = e[c], g = e[kind ? hf[c] : pf[c]];
+      A.insert(A.end(), {m.x[n], m.y[n], m.z[n]});
+      B.insert(B.end(), {m.x[g], m.y[g], m.z[g]});
+    }
+    auto sh = kind ? model::Shape::Hex : model::Shape::Prism;
+    return model::element_quality(sh, 1, A.data()).valid || model::element_quality(sh, 1, B.data()).valid;
+  };
+  std::map<std::uint32_t, V3> x0;
+  std::map<std::uint32_t, double> scale;
+  std::set<std::uint32_t> kept;
+  auto place = [&](std::uint32_t n) {
+    V3 b = X(base.at(n)), p = add(b, mul(sub(x0.at(n), b), scale.at(n)));
+    m.x[n] = p[0], m.y[n] = p[1], m.z[n] = p[2];
+  };
+  std::vector<shell::Vec3> pts(m.num_nodes());
+  long first = -1, last = 0;
+  std::vector<std::array<int, 2>> left;
+  // rounds of thinning at the crossing pairs not in `ignore`; leaves the pairs still crossing
+  auto attempt = [&](const std::set<std::array<int, 2>>& ignore) {
+    x0.clear(), scale.clear(), kept.clear();
+    for (int round = 0;; ++round) {
+      for (std::size_t i = 0; i < pts.size(); ++i) pts[i] = {m.x[i], m.y[i], m.z[i]};
+      auto rep = shell::self_intersections(pts, tris);
+      if (first < 0) first = rep.pairs;
+      last = rep.pairs;
+      left = rep.all;
+      if (rep.pairs == 0 || round == kRounds) return;
+      std::set<std::uint32_t> hit;
+      for (auto& pr : rep.all)
+        if (!ignore.count(pr))
+          for (int t : pr)
+            for (auto n : tris[t])
+              if (outer_tri[t] && base.count(n) && !kept.count(n)) hit.insert(n);
+      std::map<std::uint32_t, double> old;
+      for (auto n : hit) {
+        if (!x0.count(n)) x0[n] = X(n), scale[n] = 1;
+        if (scale[n] <= kMinScale) continue;
+        old[n] = scale[n];
+        scale[n] = std::max(kMinScale, scale[n] * kShrink);
+      }
+      if (old.empty()) return;
+      // fade: scale(a) <= scale(b) + kLipschitz along the outer surface, spreading from the hits
+      std::set<std::uint32_t> front(hit.begin(), hit.end());
+      for (int step = 0; step < 8 && !front.empty(); ++step) {
+        std::set<std::uint32_t> next;
+        for (auto a : front)
+          for (auto b : nb[a]) {
+            if (kept.count(b) || !scale.count(a)) continue;
+            double sb = scale.count(b) ? scale[b] : 1.0;
+            if (sb > scale[a] + kLipschitz + 1e-12) {
+              if (!x0.count(b)) x0[b] = X(b);
+              if (!old.count(b)) old[b] = sb;
+              scale[b] = scale[a] + kLipschitz;
+              next.insert(b);
+            }
+          }
+        front = std::move(next);
+      }
+      for (auto& [n, s0] : old) place(n);
+      // undo at the elements this round made invalid (their nodes keep the previous heights and
+      // are not moved again), until every element it touched is valid: at worst the previous state
+      std::set<std::pair<char, std::uint32_t>> touched;
+      for (auto& [n, s0] : old)
+        for (auto& e : elems[n]) touched.insert(e);
+      for (bool again = true; again;) {
+        again = false;
+        for (auto& [kind, i] : touched)
+          if (!valid(kind, i))
+            for (auto n : kind ? H[i] : P[i])
+              if (old.count(n) && scale[n] != old[n]) scale[n] = old[n], place(n), kept.insert(n), again = true;
+      }
+    }
+  };
+  std::vector<double> X0 = m.x, Y0 = m.y, Z0 = m.z;
+  attempt({});
+  long found = first;
+  if (last > 0 && found > last) {
+    // some pairs cannot be cleared by thinning (an outer face crossing a wall face next to its
+    // own base): again from the start without them, so that only what helps is thinned
+    std::set<std::array<int, 2>> stuck(left.begin(), left.end());
+    m.x = X0, m.y = Y0, m.z = Z0;
+    attempt(stuck);
+  } else if (last > 0) {
+    m.x = X0, m.y = Y0, m.z = Z0;  // nothing was cleared: keep the layer as swept
+    x0.clear(), scale.clear();
+  }
+  first = found;
+  if (std::getenv("MESHFLOW_SWEEP_DEBUG"))
+    for (std::size_t i = 0; i < left.size() && i < 20; ++i) {
+      std::string l = "outer crossing left:";
+      for (int t : left[i]) {
+        l += outer_tri[t] ? " outer" : " boundary";
+        for (auto n : tris[t])
+          l += " " + std::to_string(n) + fmt(X(n)) + "(" + std::to_string(m.node_entity_dim[n]) + "," +
+               std::to_string(m.node_entity_tag[n]) + ")";
+        l += " |";
+      }
+      log(l);
+    }
+  R.outer_crossings_before = first;
+  R.outer_crossings = last;
+  R.crossing_nodes_thinned = 0;
+  R.crossing_min_scale = 1;
+  for (auto& [n, s] : scale)
+    if (s < 1) ++R.crossing_nodes_thinned, R.crossing_min_scale = std::min(R.crossing_min_scale, s);
+  if (first > 0)
+    log("sweep: the near field's outer surface crossed itself or a boundary face at " + std::to_string(first) +
+        " face pairs" +
+        (R.crossing_nodes_thinned ? "; the layer was thinned at " + std::to_string(R.crossing_nodes_thinned) + " nodes (to " +
+                                        std::to_string(R.crossing_min_scale) + " of their height at least)"
+                                  : std::string()) +
+        (last ? "; " + std::to_string(last) + " pairs are left, which thinning does not clear (near-field elements overlap there)"
+              : std::string("; none is left")));
+}
+
 // ── periodic: the hi side as the exact image of the lo side ─────────────────────────────
 // A hi node gets the position transform.apply(x_lo) bit for bit (so matched nodes coincide to
 // rounding after the map) and its parameters by projection onto its own CAD entity: on edges
@@ -1500,6 +1708,7 @@ void Builder::volume() {
     log("invalid prisms after untangle: " + std::to_string(bad_after.size()));
   }
   if (!bad_after.empty()) throw StageError(untangle_failure(P, pface, bad_before, bad_after));
+  clear_crossings(P);
   auto& prisms = m.block(model::Shape::Prism, 1, 3, 1);
   for (std::size_t i = 0; i < P.size(); ++i) {
     valid_or_flip(model::Shape::Prism, P[i], {0, 2, 1, 3, 5, 4}, "prism on wall face " + std::to_string(pface[i]));
@@ -1715,6 +1924,8 @@ nlohmann::json Report::to_json() const {
   return {{"wall_triangles", wall_triangles}, {"strip_quads", strip_quads},   {"slide_quads", slide_quads},
           {"boundary_triangles", boundary_triangles}, {"prisms", prisms},     {"hexes", hexes},
           {"junction_blocks", junction_blocks},     {"edges_cut", edges_cut}, {"thinned", thinned}, {"nodes", nodes},
+          {"outer_crossings_before", outer_crossings_before}, {"outer_crossings", outer_crossings},
+          {"crossing_nodes_thinned", crossing_nodes_thinned}, {"crossing_min_scale", crossing_min_scale},
           {"faces_meshed", faces_meshed},           {"surface_seconds", surface_seconds},
           {"periodic_faces_copied", periodic_faces_copied}, {"periodic_pairs", periodic_pairs},
           {"periodic_max_mismatch", periodic_max_mismatch},

@@ -119,6 +119,11 @@ struct Report {
   std::size_t wall_triangles = 0, strip_quads = 0, slide_quads = 0, boundary_triangles = 0;
   std::size_t prisms = 0, hexes = 0, junction_blocks = 0, edges_cut = 0;
   std::size_t thinned = 0;  // node moves that thinned the layer to untangle prisms
+  // the near field's outer surface (sweep.cpp, clear_crossings): crossing face pairs found first
+  // and left at the end, layer nodes thinned to clear them and the smallest height scale used
+  long outer_crossings_before = 0, outer_crossings = 0;
+  std::size_t crossing_nodes_thinned = 0;
+  double crossing_min_scale = 1;
   std::size_t nodes = 0, faces_meshed = 0;
   std::size_t periodic_faces_copied = 0, periodic_pairs = 0;  // with a periodic match
   double periodic_max_mismatch = 0;  // max |T(x_lo) - x_hi| over the $Periodic pairs (a length)

@@ -5,6 +5,7 @@
 #include "engine/stage.hpp"
 #include "stages/model/quality.hpp"
 #include "stages/model/topology.hpp"
+#include "stages/shell/shell.hpp"
 #include "stages/tet/tetgen_call.hpp"
 
 #include <algorithm>
@@ -13,6 +14,7 @@
 #include <cmath>
 #include <cstdio>
 #include <limits>
+#include <map>
 #include <numeric>
 #include <regex>
 #include <sstream>
@@ -530,7 +532,7 @@ class Builder {
       res_ = detail::run_tetgen(plc_, sw);
     } catch (const detail::TetgenFailure& f) {
       emit(f.output);
-      throw StageError(failure_message(f));
+      throw StageError(failure_message(f) + crossings());
     }
     rep_.tetgen_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     emit(res_.output);
@@ -542,6 +544,49 @@ class Builder {
     std::string line;
     while (std::getline(s, line))
       if (!line.empty()) log_("tetgen: " + line);
+  }
+
+  // Only after TetGen failed (no cost on success): which facets of the far-field boundary cross
+  // each other (CGAL's AABB tree, exact predicates; pairs sharing a vertex are not tested), as
+  // TetGen's own words name at most two facets and often none (it crashes on some of them). The
+  // run log lists up to 20 pairs; the message counts them by the near-field blocks involved.
+  std::string crossings() const {
+    std::vector<shell::Vec3> pts(node_of_plc_.size());
+    for (std::size_t i = 0; i < pts.size(); ++i) pts[i] = {plc_.points[3 * i], plc_.points[3 * i + 1], plc_.points[3 * i + 2]};
+    std::vector<std::array<std::int32_t, 3>> tris(facets_.size());
+    for (std::size_t f = 0; f < facets_.size(); ++f)
+      for (int k = 0; k < 3; ++k) tris[f][k] = static_cast<std::int32_t>(plc_.triangles[3 * f + k]);
+    auto rep = shell::self_intersections(pts, tris);
+    if (rep.pairs == 0) return " Checked after the failure: no two facets of the far-field boundary without a common vertex cross.";
+    // what a facet belongs to: a boundary face's CAD face, or for the near field the CAD entity
+    // of its element's first node (a prism's wall node: its wall face; a junction hex's: its edge)
+    auto origin = [&](std::size_t f) {
+      const Facet& F = facets_[f];
+      const auto& B = in_.blocks[F.block];
+      if (F.kind == Facet::Boundary || F.kind == Facet::SplitQuad) {
+        std::string n = in_.group_name(B.entity_dim, B.entity_tag);
+        return "boundary face " + std::to_string(B.entity_tag) + (n.empty() ? "" : " (" + n + ")");
+      }
+      std::uint32_t n0 = B.nodes[static_cast<std::size_t>(F.elem) * B.nodes_per_element()];
+      if (in_.node_entity_dim.empty() || in_.node_entity_dim[n0] > 2) return std::string("the near field");
+      return std::string(in_.node_entity_dim[n0] == 2 ? "the layer on face " : "the junction on edge ") +
+             std::to_string(in_.node_entity_tag[n0]);
+    };
+    std::map<std::string, long> by;
+    for (std::size_t i = 0; i < rep.all.size(); ++i) {
+      auto a = origin(rep.all[i][0]), b = origin(rep.all[i][1]);
+      ++by[a < b ? a + " x " + b : b + " x " + a];
+      if (log_ && i < 20) log_("crossing facets: " + facet_name(rep.all[i][0]) + " and " + facet_name(rep.all[i][1]));
+    }
+    std::string s = " Checked after the failure: " + std::to_string(rep.pairs) +
+                    " pair(s) of facets of the far-field boundary cross (first: " + facet_name(rep.all[0][0]) + " and " + facet_name(rep.all[0][1]) +
+                    "); by where they come from:";
+    int k = 0;
+    for (auto& [what, n] : by)
+      if (k++ < 6) s += (k > 1 ? ";" : "") + std::string(" ") + what + " " + std::to_string(n);
+    return s + ". The near field's outer faces must not cross each other or the outer boundary; sweep thins the layer "
+               "where they do (its stats outer_crossings: what it could not clear), the shell stage's stats "
+               "self_intersection_* say where its own surface crosses.";
   }
 
   std::string failure_message(const detail::TetgenFailure& f) const {

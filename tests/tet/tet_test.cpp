@@ -505,6 +505,11 @@ TEST_CASE("tet: bad input is refused with a message naming where") {
     CHECK(msg.find("intersect") != std::string::npos);
     CHECK(msg.find("the edge (") != std::string::npos);  // TetGen's two segments, by coordinates
     CHECK(msg.find("invalid pointer") == std::string::npos);
+    // our own check after TetGen failed: which facets cross, counted by where they come from
+    CHECK(msg.find("pair(s) of facets of the far-field boundary cross (first: ") != std::string::npos);
+    CHECK(msg.find("boundary face 2 (farfield) x ") != std::string::npos);
+    CHECK(msg.find("no two facets") == std::string::npos);
+    CHECK(msg.find("..") == std::string::npos);
   }
   SUBCASE("an inverted near-field prism") {
     Built in = build(c);
