@@ -85,6 +85,18 @@
 // face grid: the shell's RULE FOR SWEEP); nodes of the strip boundaries map to PC.
 // Wall|other edges that are not junctions (topology O, or tags not in junction_with): the
 // prism's side quad lies on the other face, whose triangulation starts at the images.
+//
+// ── The outer surface ──────────────────────────────────────────────────────────────────
+// After untangling, the near field's outer surface (element faces that no second element
+// shares, with a node off the CAD: prism tops, exposed hex faces) is checked against itself and
+// every boundary face (CGAL AABB tree, exact predicates). Where two faces cross (Rotor 67: the
+// blade's layer fanning round its 1e-3 ft leading and trailing edges into the hub's and the
+// casing's layers beside the junction strips), the layer is thinned there: node heights over
+// their wall node (a junction corner PC: over its edge node P0) scaled by 0.8 per round, to 0.25
+// at least, faded out along the surface, never inverting an element. Pairs thinning cannot
+// clear (an outer face through a wall face next to its own base) are left as swept and counted:
+// stats outer_crossings_before / outer_crossings / crossing_nodes_thinned / crossing_min_scale.
+// tet, which needs the outer surface free of crossings, names what is left when TetGen fails.
 #pragma once
 
 #include "stages/model/mesh.hpp"
