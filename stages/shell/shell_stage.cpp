@@ -920,9 +920,56 @@ struct Stage {
       for (auto& wire : shape.face_wires(f)) {
         std::vector<std::array<double, 2>> loop;
         int first = static_cast<int>(uv.size());
-        bool after_strip = false;
-        for (auto& eu : wire) {
+        const std::size_t gid0 = gid.size(), bp0 = bpts.size();
+        const auto perw = shape.face_periods(f);
+        bool after_strip = false, after_pole = false;
+        // A wrapped face whose two closed edges run the same way round (Rotor 67's blade: hub
+        // and casing both u 1 -> 0, the seam up at u = 1 and down at u = 0) gives a chain that
+        // ends two periods from its start; as sweep does (sweep.cpp, "A wire closes in the
+        // plane"), the wire is then built again with its first closed edge the other way round
+        for (int flip_at = -1; flip_at < static_cast<int>(wire.size()); ++flip_at) {
+        if (flip_at >= 0) {
+          int e = wire[flip_at].edge;
+          auto vs = shape.edge_vertices(e);
+          if (shape.edge_degenerate(e) || shape.edge_is_seam(e, f) || vs[0] != vs[1]) continue;
+          uv.resize(first), gid.resize(gid0), bpts.resize(bp0), loop.clear();
+          after_strip = false, after_pole = false;
+          ok = true;
+        }
+        // On a periodic face (a blade lofted round its section: u periodic, one seam) the (u,v)
+        // of consecutive pieces of the loop may sit a period apart: a closed edge's p-curve can
+        // start at u = 1 where the seam's p-curve before it ends at u = 0 (Rotor 67's blade, whose
+        // loop then crossed the whole face and its triangulation failed), and strip stations are
+        // projections. Each piece (an edge's stations, a strip, a pole) is therefore unwrapped:
+        // its points nearest to each other, the piece nearest to the loop's last point; the
+        // whole loop is then moved by whole periods so that its mean lies in the face's box.
+        const auto per = shape.face_periods(f);
+        // (only jumps beyond 3/4 of a period, as in sweep: a one-division edge may span half a
+        // period, and so may a pole's p-curve, after which nothing is moved)
+        auto near_to = [&](std::array<double, 2> x, std::array<double, 2> ref) {
+          for (int c = 0; c < 2; ++c) {
+            double d = x[c] - ref[c];
+            if (per[c] > 0 && std::abs(d) > 0.75 * per[c]) x[c] -= per[c] * std::round(d / per[c]);
+          }
+          return x;
+        };
+        auto append = [&](std::vector<std::array<double, 2>>& piece, bool pole = false) {
+          for (std::size_t i = 1; i < piece.size(); ++i) piece[i] = near_to(piece[i], piece[i - 1]);
+          const bool shift = !after_pole;
+          after_pole = pole;
+          if (shift && !piece.empty() && !loop.empty()) {
+            auto x = near_to(piece.front(), loop.back());
+            double du = x[0] - piece.front()[0], dv = x[1] - piece.front()[1];
+            for (auto& q : piece) q[0] += du, q[1] += dv;
+          }
+          for (auto& q : piece) uv.push_back(q), loop.push_back(q);
+        };
+        std::vector<std::array<double, 2>> piece;
+        for (auto& eu0 : wire) {
+          const bool flipped = flip_at >= 0 && &eu0 == &wire[flip_at];
+          const cad::EdgeUse eu{eu0.edge, flipped ? !eu0.reversed : eu0.reversed};
           int e = eu.edge;
+          piece.clear();
           if (use_strips && E[e].junction && E[e].kind == EdgeKind::wall_wall) {
             const EdgeInfo& I = E[e];
             int n = static_cast<int>(I.t.size());
@@ -930,11 +977,11 @@ struct Stage {
               int k = eu.reversed ? n - 1 - s : s;
               StripStation q = strip_station(e, k);
               bool onA = f == I.a;
-              uv.push_back(onA ? q.uvA : q.uvB);
+              piece.push_back(onA ? q.uvA : q.uvB);
               gid.push_back(strip_id(e, k));
               bpts.push_back(onA ? q.PA : q.PB);
-              loop.push_back(uv.back());
             }
+            append(piece);
             after_strip = true;
             continue;
           }
@@ -946,9 +993,9 @@ struct Stage {
             auto vs = shape.edge_vertices(e);
             cad::Vec2 q = shape.edge_uv(e, f, eu.reversed ? r.hi : r.lo, eu.reversed);
             if (vs[0] < 0 || !v_has[vs[0]]) { ok = false; break; }
-            uv.push_back({q.u, q.v});
+            piece.push_back({q.u, q.v});
             gid.push_back(vertex_id(vs[0]));
-            loop.push_back(uv.back());
+            append(piece, true);
             continue;
           }
           const EdgeInfo& I = E[e];
@@ -957,11 +1004,27 @@ struct Stage {
           for (int s = skip_first ? 1 : 0; s < n - 1; ++s) {
             int k = eu.reversed ? n - 1 - s : s;
             cad::Vec2 q = shape.edge_uv(e, f, I.t[k], eu.reversed);
-            uv.push_back({q.u, q.v});
+            piece.push_back({q.u, q.v});
             gid.push_back(station_id(e, k, f));
             bpts.push_back(I.p[k]);
-            loop.push_back(uv.back());
           }
+          append(piece);
+        }
+        bool closes = true;
+        if (ok && loop.size() >= 3)
+          for (int c = 0; c < 2; ++c)
+            if (per[c] > 0 && std::abs(loop.front()[c] - loop.back()[c]) > 0.75 * per[c]) closes = false;
+        if (closes || !ok) break;
+        }
+        if (ok && (perw[0] > 0 || perw[1] > 0) && !loop.empty()) {
+          const auto bnd = shape.face_uv_bounds(f);
+          double mu = 0, mv = 0;
+          for (auto& q : loop) mu += q[0], mv += q[1];
+          mu /= double(loop.size()), mv /= double(loop.size());
+          double du = perw[0] > 0 ? -perw[0] * std::floor((mu - bnd.u0) / perw[0]) : 0;
+          double dv = perw[1] > 0 ? -perw[1] * std::floor((mv - bnd.v0) / perw[1]) : 0;
+          for (std::size_t i = static_cast<std::size_t>(first); i < uv.size(); ++i) uv[i][0] += du, uv[i][1] += dv;
+          for (auto& q : loop) q[0] += du, q[1] += dv;
         }
         if (!ok) break;
         // a loop that starts right after a strip: its first edge's vertex is dropped too
