@@ -47,7 +47,9 @@ void run(StageContext& ctx) {
     uo.surface = p.value("untangle_surface", true);
     std::function<void(const std::string&)> dbg;
     if (std::getenv("MESHFLOW_UNTANGLE_DEBUG")) dbg = [&](const std::string& l) { ctx.log(l); };
-    ur = untangle(m, uo, ctx.threads(), dbg, &shape);
+    ur = untangle(m, uo, ctx.threads(), dbg, &shape, [&](std::size_t k, std::size_t n) {
+      if (k % 10 == 0) ctx.progress(0.5 + 0.2 * double(k) / double(n), "untangling: " + std::to_string(k) + " of " + std::to_string(n) + " invalid elements");
+    });
   }
   ctx.progress(0.7, "writing");
   io::write_mesh(m, ctx.output("mesh", "mesh"), io::MeshFormat::MshBinary);

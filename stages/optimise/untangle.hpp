@@ -23,7 +23,9 @@
 //           Minimised by L-BFGS (LBFGSpp), variables (x - x0) / h. When the result is not valid,
 //           a second attempt from the same start uses 2.5 x target on the denser lattice of
 //           order 3(P-1) (the degree of det J on a tet): samples can be positive while det J dips
-//           below zero between them.
+//           below zero between them. When the first attempt ends with an energy of at least
+//           target^2 (what one sample at r <= 0 costs alone) the patch is stuck far from valid
+//           and the harder attempts are skipped (counted: stuck).
 //   slide   with the shape (the stage passes it), when moving the off-CAD nodes of a patch does
 //           not repair it, the same patch is tried again with the high-order nodes inside CAD
 //           faces free as well, sliding on their faces: variables (u, v), x = S(u, v) (never
@@ -70,6 +72,7 @@ struct UntangleReport {
   std::size_t attempts = 0, repaired = 0, nodes_moved = 0;
   std::size_t surface_nodes_moved = 0, repaired_sliding = 0;  // nodes slid on CAD faces; patches that needed it
   std::size_t skipped = 0;  // invalid elements inside the largest patch of one that could not be repaired: not tried
+  std::size_t stuck = 0;    // patch attempts whose coarse try stayed >= target^2: the harder tries were skipped
   std::vector<int> repaired_at_ring;                   // [ring-1] = elements repaired with that ring
   std::vector<std::uint64_t> unresolved;               // element tags still invalid (at most 100)
   double max_move = 0;                                  // largest node displacement / h of its patch
@@ -81,8 +84,10 @@ struct UntangleReport {
 // invalid. `threads` is used only for the whole-mesh validity check.
 // `log`, when set, gets one line per patch attempt (a diagnostic: energies, sizes, outcome).
 // With `shape` (the one the mesh's node classification refers to), nodes inside CAD faces may
-// slide on them ("slide" above); without it they never move.
+// slide on them ("slide" above); without it they never move. `progress`, when set, is called
+// before each invalid element with (elements visited, invalid elements).
 UntangleReport untangle(model::Mesh& m, const UntangleOptions& opt, int threads = 0,
-                        const std::function<void(const std::string&)>& log = {}, const cad::Shape* shape = nullptr);
+                        const std::function<void(const std::string&)>& log = {}, const cad::Shape* shape = nullptr,
+                        const std::function<void(std::size_t, std::size_t)>& progress = {});
 
 }  // namespace meshflow::optimise
