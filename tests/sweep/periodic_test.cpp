@@ -189,7 +189,7 @@ TEST_CASE("sweep with periodic_match: the periodic_hi side is the image of perio
   gmsh_check(dir, out / "mesh.msh", mesh);
 }
 
-TEST_CASE("workflows/rotor67.yaml through sweep: valid near field, periodic_hi the rotated image of periodic_lo to 1e-12 R") {
+TEST_CASE("workflows/rotor67.yaml through tet: valid conforming linear hybrid mesh, outer-surface crossings cleared, periodic_hi the rotated image of periodic_lo to 1e-12 R") {
   if (!fs::exists(fs::path(MESHFLOW_DATA_DIR) / "rotor67/rotor67geometry.dat")) return;
   fs::path dir = mftest::temp_dir("sweep-rotor67");
   auto r = mftest::sh(std::string(MESHFLOW_EXE) + " run " + (fs::path(MESHFLOW_SOURCE_DIR) / "workflows/rotor67.yaml").string() +
@@ -219,6 +219,33 @@ TEST_CASE("workflows/rotor67.yaml through sweep: valid near field, periodic_hi t
   CHECK(hexes > 0);
   CHECK(ms.at("invalid").get<int>() == 0);
   CHECK(ms.at("nonconforming_faces").get<int>() == 0);
-  gmsh_check(dir, out / "near.msh", near);
+  // the blade's layer fans into the hub's and casing's around its leading and trailing edges:
+  // sweep found crossings of the outer surface and cleared every one by thinning (without it
+  // TetGen aborts on this surface)
+  nlohmann::json sw = stage_stats(out, "sweep").at("sweep");
+  INFO(sw.dump());
+  CHECK(sw.at("outer_crossings_before").get<long>() > 0);
+  CHECK(sw.at("outer_crossings").get<long>() == 0);
+  CHECK(sw.at("crossing_nodes_thinned").get<long>() > 0);
+  CHECK(sw.at("crossing_min_scale").get<double>() >= 0.25);
+
+  // the whole linear hybrid mesh: tets fill the passage, conforming, valid, periodic pairs kept
+  auto lin = meshflow::io::read_mesh(out / "linear.msh");
+  std::size_t tets = 0, lprisms = 0, lhexes = 0;
+  for (auto& b : lin.blocks) {
+    if (b.shape == Shape::Tet) tets += b.size();
+    if (b.shape == Shape::Prism) lprisms += b.size();
+    if (b.shape == Shape::Hex) lhexes += b.size();
+  }
+  auto ls = meshflow::model::mesh_stats(lin, 2);
+  MESSAGE("rotor67 linear mesh: " << lprisms << " prisms, " << lhexes << " hexes, " << tets << " tets, invalid " << ls.at("invalid")
+                                  << ", min scaled Jacobian " << ls.at("min_scaled_jacobian"));
+  CHECK(lprisms == prisms);
+  CHECK(lhexes == hexes);
+  CHECK(tets > 100000);
+  CHECK(ls.at("invalid").get<int>() == 0);
+  CHECK(ls.at("nonconforming_faces").get<int>() == 0);
+  CHECK(check_periodic(lin, pm) <= 1e-12 * R);
+  gmsh_check(dir, out / "linear.msh", lin);
   fs::remove_all(dir);
 }
