@@ -270,6 +270,8 @@ class Builder {
   std::string untangle_failure(const std::vector<std::vector<std::uint32_t>>& P, const std::vector<int>& pface,
                                const std::vector<char>& bad_before, const std::vector<std::size_t>& bad_after);
   void untangle(std::vector<std::vector<std::uint32_t>>& prisms);
+  void end_caps(const std::vector<std::vector<std::uint32_t>>& P, const std::vector<int>& pface, std::vector<char>& capped,
+                std::vector<std::vector<std::uint32_t>>& tets, std::vector<std::vector<std::uint32_t>>& pyramids);
 };
 
 double Builder::edge_h(int e, double t, double hmax) const {
@@ -1224,6 +1226,115 @@ void Builder::untangle(std::vector<std::vector<std::uint32_t>>& P) {
   round(" (junction corners moved too)");
 }
 
+// ── junction end caps (sweep.hpp, "Junction ends on a third face") ──────────────────────
+// A junction end (V, PA, PC, PB) whose end face is no other block's, where the wall triangles at
+// V (all on faces other than the junction's: A and B have only strip quads at V) form one fan
+// from the edge V-PA to the edge V-PB, PA and PB swept to PC and V to its vertex image V': each
+// prism of the fan (V, a, b | V', a', b') becomes the tet (V, a, b, V') and the pyramid
+// (a, b, b', a'; V'), so that the fan's side faces are split along a-V' (conforming between
+// neighbours: both halves have apex V'), and the pocket between the end face and the fan's first
+// and last side faces is the pyramid (V, PA, PC, PB; V'). Its outer surface is then the prism
+// tops (V', a', b'): the edge V'-PC has two faces. V' is used by these elements only, so it is
+// moved (pattern search within the layer thickness) to maximise their smallest scaled Jacobian.
+// Done only when every new element is then valid; otherwise the prisms and V' stay (and tet
+// names the pocket).
+void Builder::end_caps(const std::vector<std::vector<std::uint32_t>>& P, const std::vector<int>& pface, std::vector<char>& capped,
+                       std::vector<std::vector<std::uint32_t>>& tets, std::vector<std::vector<std::uint32_t>>& pyramids) {
+  auto det3 = [](V3 a, V3 b, V3 c) { return dot(a, cross(b, c)); };
+  std::map<std::vector<std::uint32_t>, int> end_faces;  // sorted end-face nodes -> blocks ending with it
+  auto end_face = [&](const Junction& j, std::size_t k) {
+    std::vector<std::uint32_t> f{j.p0[k], j.pa[k], j.pc[k], j.pb[k]};
+    std::sort(f.begin(), f.end());
+    return f;
+  };
+  for (auto& j : J)
+    for (std::size_t k : {std::size_t(0), j.p0.size() - 1}) ++end_faces[end_face(j, k)];
+  std::map<std::uint32_t, std::vector<std::size_t>> at;  // wall node -> prisms having it
+  for (std::size_t i = 0; i < P.size(); ++i)
+    for (int c = 0; c < 3; ++c) at[P[i][c]].push_back(i);
+  for (auto& j : J)
+    for (std::size_t k : {std::size_t(0), j.p0.size() - 1}) {
+      std::uint32_t V = j.p0[k], PA = j.pa[k], PB = j.pb[k], PC = j.pc[k];
+      if (end_faces[end_face(j, k)] > 1 || PA == PB || !at.count(V)) continue;
+      const auto& fan = at[V];
+      std::map<std::uint32_t, int> deg;  // rim node -> fan triangles using the edge V-rim
+      std::uint32_t Vi = kNone;
+      bool ok = true;
+      for (auto i : fan) {
+        if (capped[i] || pface[i] == j.A || pface[i] == j.B) ok = false;
+        for (int c = 0; c < 3; ++c)
+          if (P[i][c] == V) {
+            if (Vi != kNone && Vi != P[i][3 + c]) ok = false;
+            Vi = P[i][3 + c];
+          } else {
+            ++deg[P[i][c]];
+            if ((P[i][c] == PA || P[i][c] == PB) && P[i][3 + c] != PC) ok = false;
+          }
+      }
+      for (auto [n, d] : deg)
+        if (d != ((n == PA || n == PB) ? 1 : 2)) ok = false;
+      if (!ok || Vi == kNone || m.node_entity_dim[Vi] != 3 || !deg.count(PA) || !deg.count(PB) || deg.size() != fan.size() + 1) continue;
+      // the elements, oriented by the side of the wall V' is on (tet (V, a, b, V') positive)
+      std::vector<std::vector<std::uint32_t>> T, Y;
+      for (auto i : fan) {
+        int c = 0;
+        while (P[i][c] != V) ++c;
+        int a = (c + 1) % 3, b = (c + 2) % 3;
+        if (det3(sub(X(P[i][a]), X(V)), sub(X(P[i][b]), X(V)), sub(X(Vi), X(V))) < 0) std::swap(a, b);
+        std::uint32_t na = P[i][a], nb = P[i][b], ia = P[i][3 + a], ib = P[i][3 + b];
+        if (ia == ib) ok = false;  // a collapsed prism (refused before untangling)
+        T.push_back({V, na, nb, Vi});
+        Y.push_back({na, ia, ib, nb, Vi});  // base normal towards the apex (Gmsh's pyramid)
+      }
+      if (det3(sub(X(PA), X(V)), sub(X(PB), X(V)), sub(X(Vi), X(V))) > 0)
+        Y.push_back({V, PA, PC, PB, Vi});
+      else
+        Y.push_back({V, PB, PC, PA, Vi});
+      if (!ok) continue;
+      auto worst = [&]() {  // smallest scaled Jacobian (negative: inverted) of the cap's elements
+        double w = INFINITY;
+        for (auto* L : {&T, &Y})
+          for (auto& e : *L) {
+            std::vector<double> X3;
+            for (auto n : e) X3.push_back(m.x[n]), X3.push_back(m.y[n]), X3.push_back(m.z[n]);
+            auto q = model::element_quality(e.size() == 4 ? model::Shape::Tet : model::Shape::Pyramid, 1, X3.data());
+            w = std::min(w, q.valid ? std::max(q.scaled_jacobian, 1e-12) : std::min(q.scaled_jacobian, 0.0) - 1);
+          }
+        return w;
+      };
+      V3 x0 = X(Vi), best = x0;
+      double q0 = worst(), qb = q0, step = 0.25 * norm(sub(x0, X(V)));
+      for (int it = 0; it < 12 && step > 0; ++it) {  // pattern search, step halved when no move helps
+        bool moved = false;
+        for (int c = 0; c < 6; ++c) {
+          V3 x = best;
+          x[c / 2] += (c % 2 ? -step : step);
+          m.x[Vi] = x[0], m.y[Vi] = x[1], m.z[Vi] = x[2];
+          double q = worst();
+          if (q > qb) qb = q, best = x, moved = true;
+        }
+        if (!moved) step *= 0.5;
+      }
+      V3 xv = X(V);
+      if (!(qb > 0)) {
+        m.x[Vi] = x0[0], m.y[Vi] = x0[1], m.z[Vi] = x0[2];
+        log("sweep: the junction along edge " + std::to_string(j.edge) + " ends on wall face " + std::to_string(pface[fan.front()]) +
+            " at " + fmt(xv) + ", not one of its faces; no position of the vertex's shell node makes its end cap (" +
+            std::to_string(T.size()) + " tets, " + std::to_string(Y.size()) + " pyramids) valid: the prisms stay");
+        continue;
+      }
+      m.x[Vi] = best[0], m.y[Vi] = best[1], m.z[Vi] = best[2];
+      for (auto i : fan) capped[i] = 1;
+      tets.insert(tets.end(), T.begin(), T.end());
+      pyramids.insert(pyramids.end(), Y.begin(), Y.end());
+      ++R.end_caps;
+      log("sweep: the junction along edge " + std::to_string(j.edge) + " ends on wall face " + std::to_string(pface[fan.front()]) +
+          " at " + fmt(xv) + ": end cap of " + std::to_string(T.size()) + " tets and " + std::to_string(Y.size()) +
+          " pyramids, min scaled Jacobian " + std::to_string(qb) + " (" + std::to_string(q0) + " before moving the vertex's shell node by " +
+          std::to_string(norm(sub(best, x0))) + ")");
+    }
+}
+
 // ── periodic: the hi side as the exact image of the lo side ─────────────────────────────
 // A hi node gets the position transform.apply(x_lo) bit for bit (so matched nodes coincide to
 // rounding after the map) and its parameters by projection onto its own CAD entity: on edges
@@ -1482,9 +1593,13 @@ void Builder::volume() {
   std::vector<char> bad_before(P.size(), 0);
   for (std::size_t i = 0; i < P.size(); ++i) bad_before[i] = !prism_ok(P[i]);
   untangle(P);
+  // junction ends on a third face: the prisms there become the end cap's tets and pyramids
+  std::vector<char> capped(P.size(), 0);
+  std::vector<std::vector<std::uint32_t>> cap_tets, cap_pyramids;
+  end_caps(P, pface, capped, cap_tets, cap_pyramids);
   std::vector<std::size_t> bad_after;
   for (std::size_t i = 0; i < P.size(); ++i)
-    if (!prism_ok(P[i])) bad_after.push_back(i);
+    if (!capped[i] && !prism_ok(P[i])) bad_after.push_back(i);
   if (std::getenv("MESHFLOW_SWEEP_DEBUG")) {
     for (auto i : bad_after) {
       std::string l = "invalid after untangle: face " + std::to_string(pface[i]) + ":";
@@ -1502,11 +1617,19 @@ void Builder::volume() {
   if (!bad_after.empty()) throw StageError(untangle_failure(P, pface, bad_before, bad_after));
   auto& prisms = m.block(model::Shape::Prism, 1, 3, 1);
   for (std::size_t i = 0; i < P.size(); ++i) {
+    if (capped[i]) continue;
     valid_or_flip(model::Shape::Prism, P[i], {0, 2, 1, 3, 5, 4}, "prism on wall face " + std::to_string(pface[i]));
     prisms.add(P[i].data());
     ++R.prisms;
   }
   if (prisms.size() == 0) m.blocks.pop_back();
+  if (!cap_tets.empty()) {  // oriented by end_caps
+    auto& tb = m.block(model::Shape::Tet, 1, 3, 1);
+    for (auto& t : cap_tets) tb.add(t.data());
+    auto& pb = m.block(model::Shape::Pyramid, 1, 3, 1);
+    for (auto& q : cap_pyramids) pb.add(q.data());
+    R.cap_tets += cap_tets.size(), R.cap_pyramids += cap_pyramids.size();
+  }
   for (auto& j : J) {
     std::size_t n = j.p0.size();
     for (std::size_t k = 0; k + 1 < n; ++k) {
@@ -1719,6 +1842,7 @@ nlohmann::json Report::to_json() const {
           {"periodic_faces_copied", periodic_faces_copied}, {"periodic_pairs", periodic_pairs},
           {"periodic_max_mismatch", periodic_max_mismatch},
           {"periodic_max_mismatch_rel", periodic_model_size > 0 ? periodic_max_mismatch / periodic_model_size : 0.0},
+          {"end_caps", end_caps}, {"cap_tets", cap_tets}, {"cap_pyramids", cap_pyramids},
           {"total_seconds", total_seconds}};
 }
 

@@ -118,6 +118,7 @@ struct Options {
 struct Report {
   std::size_t wall_triangles = 0, strip_quads = 0, slide_quads = 0, boundary_triangles = 0;
   std::size_t prisms = 0, hexes = 0, junction_blocks = 0, edges_cut = 0;
+  std::size_t end_caps = 0, cap_tets = 0, cap_pyramids = 0;  // junction ends on a third face (see above)
   std::size_t thinned = 0;  // node moves that thinned the layer to untangle prisms
   std::size_t nodes = 0, faces_meshed = 0;
   std::size_t periodic_faces_copied = 0, periodic_pairs = 0;  // with a periodic match
