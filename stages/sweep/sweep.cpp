@@ -1302,13 +1302,24 @@ void Builder::end_caps(const std::vector<std::vector<std::uint32_t>>& P, const s
           }
         return w;
       };
-      V3 x0 = X(Vi), best = x0;
-      double q0 = worst(), qb = q0, step = 0.25 * norm(sub(x0, X(V)));
-      for (int it = 0; it < 12 && step > 0; ++it) {  // pattern search, step halved when no move helps
+      // start: V' or V + the mean layer vector of the rim nodes (V' may be much thinner), step a
+      // quarter of the larger of the two lengths
+      V3 x0 = X(Vi), mean{0, 0, 0};
+      int nrim = 0;
+      for (auto& t : Y)
+        if (t[0] != V) mean = add(mean, sub(X(t[1]), X(t[0]))), ++nrim;
+      mean = mul(mean, 1.0 / std::max(nrim, 1));
+      double q0 = worst(), qb = q0;
+      V3 best = x0, x1 = add(X(V), mean);
+      m.x[Vi] = x1[0], m.y[Vi] = x1[1], m.z[Vi] = x1[2];
+      if (double q1 = worst(); q1 > qb) qb = q1, best = x1;
+      double step = 0.25 * std::max(norm(sub(x0, X(V))), norm(mean)), reach = 8 * step;  // V' within twice that of V
+      for (int it = 0; it < 40 && step > 0; ++it) {  // pattern search, step halved when no move helps
         bool moved = false;
         for (int c = 0; c < 6; ++c) {
           V3 x = best;
           x[c / 2] += (c % 2 ? -step : step);
+          if (norm(sub(x, X(V))) > reach) continue;
           m.x[Vi] = x[0], m.y[Vi] = x[1], m.z[Vi] = x[2];
           double q = worst();
           if (q > qb) qb = q, best = x, moved = true;
@@ -1316,9 +1327,28 @@ void Builder::end_caps(const std::vector<std::vector<std::uint32_t>>& P, const s
         if (!moved) step *= 0.5;
       }
       V3 xv = X(V);
+      std::set<int> on;
+      for (auto i : fan) on.insert(pface[i]);
+      std::string faces;
+      for (int f : on) faces += (faces.empty() ? "" : ", ") + std::to_string(f);
+      faces = (on.size() > 1 ? "wall faces " : "wall face ") + faces;
+      if (!(qb > 0) && std::getenv("MESHFLOW_SWEEP_DEBUG")) {  // the cap's invalid elements at the best V'
+        m.x[Vi] = best[0], m.y[Vi] = best[1], m.z[Vi] = best[2];
+        for (auto* L : {&T, &Y})
+          for (auto& e : *L) {
+            std::vector<double> X3;
+            for (auto n : e) X3.push_back(m.x[n]), X3.push_back(m.y[n]), X3.push_back(m.z[n]);
+            auto q = model::element_quality(e.size() == 4 ? model::Shape::Tet : model::Shape::Pyramid, 1, X3.data());
+            if (q.valid) continue;
+            std::string l = std::string("  invalid cap ") + (e.size() == 4 ? "tet" : "pyramid") + " (scaled Jacobian " +
+                            std::to_string(q.scaled_jacobian) + "):";
+            for (auto n : e) l += " " + std::to_string(n) + fmt(X(n));
+            log(l);
+          }
+      }
       if (!(qb > 0)) {
         m.x[Vi] = x0[0], m.y[Vi] = x0[1], m.z[Vi] = x0[2];
-        log("sweep: the junction along edge " + std::to_string(j.edge) + " ends on wall face " + std::to_string(pface[fan.front()]) +
+        log("sweep: the junction along edge " + std::to_string(j.edge) + " ends on " + faces +
             " at " + fmt(xv) + ", not one of its faces; no position of the vertex's shell node makes its end cap (" +
             std::to_string(T.size()) + " tets, " + std::to_string(Y.size()) + " pyramids) valid: the prisms stay");
         continue;
@@ -1328,7 +1358,7 @@ void Builder::end_caps(const std::vector<std::vector<std::uint32_t>>& P, const s
       tets.insert(tets.end(), T.begin(), T.end());
       pyramids.insert(pyramids.end(), Y.begin(), Y.end());
       ++R.end_caps;
-      log("sweep: the junction along edge " + std::to_string(j.edge) + " ends on wall face " + std::to_string(pface[fan.front()]) +
+      log("sweep: the junction along edge " + std::to_string(j.edge) + " ends on " + faces +
           " at " + fmt(xv) + ": end cap of " + std::to_string(T.size()) + " tets and " + std::to_string(Y.size()) +
           " pyramids, min scaled Jacobian " + std::to_string(qb) + " (" + std::to_string(q0) + " before moving the vertex's shell node by " +
           std::to_string(norm(sub(best, x0))) + ")");
