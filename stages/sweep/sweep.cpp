@@ -270,8 +270,20 @@ class Builder {
   std::string untangle_failure(const std::vector<std::vector<std::uint32_t>>& P, const std::vector<int>& pface,
                                const std::vector<char>& bad_before, const std::vector<std::size_t>& bad_after);
   void untangle(std::vector<std::vector<std::uint32_t>>& prisms);
-  void end_caps(const std::vector<std::vector<std::uint32_t>>& P, const std::vector<int>& pface, std::vector<char>& capped,
-                std::vector<std::vector<std::uint32_t>>& tets, std::vector<std::vector<std::uint32_t>>& pyramids);
+  // junction ends on a third face (end_caps, see the definitions)
+  struct Cap {
+    int edge = -1;
+    std::uint32_t V = kNone, Vi = kNone;             // the end vertex's node and its shell node V'
+    std::vector<std::size_t> fan;                    // the prisms at V
+    std::vector<std::vector<std::uint32_t>> tets, pyramids;
+    std::string faces;                               // the fan's faces, for messages
+    double moved = 0;                                // how far V' was moved
+  };
+  std::vector<Cap> caps;
+  void find_caps(const std::vector<std::vector<std::uint32_t>>& P, const std::vector<int>& pface);
+  double cap_quality(const Cap& c) const;
+  double place_cap(Cap& c);
+  void log_cap(const Cap& c, double q, const std::string& when);
 };
 
 double Builder::edge_h(int e, double t, double hmax) const {
@@ -1235,11 +1247,8 @@ void Builder::untangle(std::vector<std::vector<std::uint32_t>>& P) {
 // neighbours: both halves have apex V'), and the pocket between the end face and the fan's first
 // and last side faces is the pyramid (V, PA, PC, PB; V'). Its outer surface is then the prism
 // tops (V', a', b'): the edge V'-PC has two faces. V' is used by these elements only, so it is
-// moved (pattern search within the layer thickness) to maximise their smallest scaled Jacobian.
-// Done only when every new element is then valid; otherwise the prisms and V' stay (and tet
-// names the pocket).
-void Builder::end_caps(const std::vector<std::vector<std::uint32_t>>& P, const std::vector<int>& pface, std::vector<char>& capped,
-                       std::vector<std::vector<std::uint32_t>>& tets, std::vector<std::vector<std::uint32_t>>& pyramids) {
+// moved (place_cap) to maximise their smallest scaled Jacobian.
+void Builder::find_caps(const std::vector<std::vector<std::uint32_t>>& P, const std::vector<int>& pface) {
   auto det3 = [](V3 a, V3 b, V3 c) { return dot(a, cross(b, c)); };
   std::map<std::vector<std::uint32_t>, int> end_faces;  // sorted end-face nodes -> blocks ending with it
   auto end_face = [&](const Junction& j, std::size_t k) {
@@ -1255,13 +1264,19 @@ void Builder::end_caps(const std::vector<std::vector<std::uint32_t>>& P, const s
   for (auto& j : J)
     for (std::size_t k : {std::size_t(0), j.p0.size() - 1}) {
       std::uint32_t V = j.p0[k], PA = j.pa[k], PB = j.pb[k], PC = j.pc[k];
-      if (end_faces[end_face(j, k)] > 1 || PA == PB || !at.count(V)) continue;
-      const auto& fan = at[V];
+      if (end_faces[end_face(j, k)] > 1 || PA == PB || !at.count(V)) {
+        if (std::getenv("MESHFLOW_SWEEP_DEBUG"))
+          log("no end cap for the junction along edge " + std::to_string(j.edge) + " at " + fmt(X(V)) + ": " +
+              (end_faces[end_face(j, k)] > 1 ? "its end face is another block's too" : PA == PB ? "PA = PB" : "no prism at the vertex"));
+        continue;
+      }
+      Cap cap;
+      cap.edge = j.edge, cap.V = V, cap.fan = at[V];
       std::map<std::uint32_t, int> deg;  // rim node -> fan triangles using the edge V-rim
-      std::uint32_t Vi = kNone;
+      std::uint32_t& Vi = cap.Vi;
       bool ok = true;
-      for (auto i : fan) {
-        if (capped[i] || pface[i] == j.A || pface[i] == j.B) ok = false;
+      for (auto i : cap.fan) {
+        if (pface[i] == j.A || pface[i] == j.B) ok = false;
         for (int c = 0; c < 3; ++c)
           if (P[i][c] == V) {
             if (Vi != kNone && Vi != P[i][3 + c]) ok = false;
@@ -1273,95 +1288,106 @@ void Builder::end_caps(const std::vector<std::vector<std::uint32_t>>& P, const s
       }
       for (auto [n, d] : deg)
         if (d != ((n == PA || n == PB) ? 1 : 2)) ok = false;
-      if (!ok || Vi == kNone || m.node_entity_dim[Vi] != 3 || !deg.count(PA) || !deg.count(PB) || deg.size() != fan.size() + 1) continue;
+      if (!ok || Vi == kNone || m.node_entity_dim[Vi] != 3 || !deg.count(PA) || !deg.count(PB) || deg.size() != cap.fan.size() + 1) {
+        if (std::getenv("MESHFLOW_SWEEP_DEBUG")) {
+          std::string l = "no end cap for the junction along edge " + std::to_string(j.edge) + " at " + fmt(X(V)) + ": " +
+                          std::to_string(cap.fan.size()) + " prisms at the vertex, rim";
+          for (auto [n, d] : deg) l += " " + std::to_string(n) + (n == PA ? "(PA)" : n == PB ? "(PB)" : "") + "x" + std::to_string(d);
+          log(l + (ok ? "" : "; a prism on A or B, or PA/PB not swept to PC"));
+        }
+        continue;
+      }
       // the elements, oriented by the side of the wall V' is on (tet (V, a, b, V') positive)
-      std::vector<std::vector<std::uint32_t>> T, Y;
-      for (auto i : fan) {
+      for (auto i : cap.fan) {
         int c = 0;
         while (P[i][c] != V) ++c;
         int a = (c + 1) % 3, b = (c + 2) % 3;
         if (det3(sub(X(P[i][a]), X(V)), sub(X(P[i][b]), X(V)), sub(X(Vi), X(V))) < 0) std::swap(a, b);
         std::uint32_t na = P[i][a], nb = P[i][b], ia = P[i][3 + a], ib = P[i][3 + b];
         if (ia == ib) ok = false;  // a collapsed prism (refused before untangling)
-        T.push_back({V, na, nb, Vi});
-        Y.push_back({na, ia, ib, nb, Vi});  // base normal towards the apex (Gmsh's pyramid)
+        cap.tets.push_back({V, na, nb, Vi});
+        cap.pyramids.push_back({na, ia, ib, nb, Vi});  // base normal towards the apex (Gmsh's pyramid)
       }
       if (det3(sub(X(PA), X(V)), sub(X(PB), X(V)), sub(X(Vi), X(V))) > 0)
-        Y.push_back({V, PA, PC, PB, Vi});
+        cap.pyramids.push_back({V, PA, PC, PB, Vi});
       else
-        Y.push_back({V, PB, PC, PA, Vi});
+        cap.pyramids.push_back({V, PB, PC, PA, Vi});
       if (!ok) continue;
-      auto worst = [&]() {  // smallest scaled Jacobian (negative: inverted) of the cap's elements
-        double w = INFINITY;
-        for (auto* L : {&T, &Y})
-          for (auto& e : *L) {
-            std::vector<double> X3;
-            for (auto n : e) X3.push_back(m.x[n]), X3.push_back(m.y[n]), X3.push_back(m.z[n]);
-            auto q = model::element_quality(e.size() == 4 ? model::Shape::Tet : model::Shape::Pyramid, 1, X3.data());
-            w = std::min(w, q.valid ? std::max(q.scaled_jacobian, 1e-12) : std::min(q.scaled_jacobian, 0.0) - 1);
-          }
-        return w;
-      };
-      // start: V' or V + the mean layer vector of the rim nodes (V' may be much thinner), step a
-      // quarter of the larger of the two lengths
-      V3 x0 = X(Vi), mean{0, 0, 0};
-      int nrim = 0;
-      for (auto& t : Y)
-        if (t[0] != V) mean = add(mean, sub(X(t[1]), X(t[0]))), ++nrim;
-      mean = mul(mean, 1.0 / std::max(nrim, 1));
-      double q0 = worst(), qb = q0;
-      V3 best = x0, x1 = add(X(V), mean);
-      m.x[Vi] = x1[0], m.y[Vi] = x1[1], m.z[Vi] = x1[2];
-      if (double q1 = worst(); q1 > qb) qb = q1, best = x1;
-      double step = 0.25 * std::max(norm(sub(x0, X(V))), norm(mean)), reach = 8 * step;  // V' within twice that of V
-      for (int it = 0; it < 40 && step > 0; ++it) {  // pattern search, step halved when no move helps
-        bool moved = false;
-        for (int c = 0; c < 6; ++c) {
-          V3 x = best;
-          x[c / 2] += (c % 2 ? -step : step);
-          if (norm(sub(x, X(V))) > reach) continue;
-          m.x[Vi] = x[0], m.y[Vi] = x[1], m.z[Vi] = x[2];
-          double q = worst();
-          if (q > qb) qb = q, best = x, moved = true;
-        }
-        if (!moved) step *= 0.5;
-      }
-      V3 xv = X(V);
       std::set<int> on;
-      for (auto i : fan) on.insert(pface[i]);
-      std::string faces;
-      for (int f : on) faces += (faces.empty() ? "" : ", ") + std::to_string(f);
-      faces = (on.size() > 1 ? "wall faces " : "wall face ") + faces;
-      if (!(qb > 0) && std::getenv("MESHFLOW_SWEEP_DEBUG")) {  // the cap's invalid elements at the best V'
-        m.x[Vi] = best[0], m.y[Vi] = best[1], m.z[Vi] = best[2];
-        for (auto* L : {&T, &Y})
-          for (auto& e : *L) {
-            std::vector<double> X3;
-            for (auto n : e) X3.push_back(m.x[n]), X3.push_back(m.y[n]), X3.push_back(m.z[n]);
-            auto q = model::element_quality(e.size() == 4 ? model::Shape::Tet : model::Shape::Pyramid, 1, X3.data());
-            if (q.valid) continue;
-            std::string l = std::string("  invalid cap ") + (e.size() == 4 ? "tet" : "pyramid") + " (scaled Jacobian " +
-                            std::to_string(q.scaled_jacobian) + "):";
-            for (auto n : e) l += " " + std::to_string(n) + fmt(X(n));
-            log(l);
-          }
-      }
-      if (!(qb > 0)) {
-        m.x[Vi] = x0[0], m.y[Vi] = x0[1], m.z[Vi] = x0[2];
-        log("sweep: the junction along edge " + std::to_string(j.edge) + " ends on " + faces +
-            " at " + fmt(xv) + ", not one of its faces; no position of the vertex's shell node makes its end cap (" +
-            std::to_string(T.size()) + " tets, " + std::to_string(Y.size()) + " pyramids) valid: the prisms stay");
-        continue;
-      }
-      m.x[Vi] = best[0], m.y[Vi] = best[1], m.z[Vi] = best[2];
-      for (auto i : fan) capped[i] = 1;
-      tets.insert(tets.end(), T.begin(), T.end());
-      pyramids.insert(pyramids.end(), Y.begin(), Y.end());
-      ++R.end_caps;
-      log("sweep: the junction along edge " + std::to_string(j.edge) + " ends on " + faces +
-          " at " + fmt(xv) + ": end cap of " + std::to_string(T.size()) + " tets and " + std::to_string(Y.size()) +
-          " pyramids, min scaled Jacobian " + std::to_string(qb) + " (" + std::to_string(q0) + " before moving the vertex's shell node by " +
-          std::to_string(norm(sub(best, x0))) + ")");
+      for (auto i : cap.fan) on.insert(pface[i]);
+      for (int f : on) cap.faces += (cap.faces.empty() ? "" : ", ") + std::to_string(f);
+      cap.faces = (on.size() > 1 ? "wall faces " : "wall face ") + cap.faces;
+      caps.push_back(std::move(cap));
+    }
+}
+
+// smallest scaled Jacobian of the cap's elements (below 0: one is inverted, by how much)
+double Builder::cap_quality(const Cap& c) const {
+  double w = INFINITY;
+  for (auto* L : {&c.tets, &c.pyramids})
+    for (auto& e : *L) {
+      std::vector<double> X3;
+      for (auto n : e) X3.push_back(m.x[n]), X3.push_back(m.y[n]), X3.push_back(m.z[n]);
+      auto q = model::element_quality(e.size() == 4 ? model::Shape::Tet : model::Shape::Pyramid, 1, X3.data());
+      w = std::min(w, q.valid ? std::max(q.scaled_jacobian, 1e-12) : std::min(q.scaled_jacobian, 0.0) - 1);
+    }
+  return w;
+}
+
+// V' by pattern search from its position and from V + the fan's mean layer vector (V' may be much
+// thinner), step a quarter of the larger of the two lengths, within twice that length of V; V'
+// left at the best position found. Returns the cap's quality there (cap_quality).
+double Builder::place_cap(Cap& c) {
+  std::uint32_t Vi = c.Vi;
+  V3 xV = X(c.V), x0 = X(Vi), mean{0, 0, 0};
+  int nrim = 0;
+  for (auto& t : c.pyramids)
+    if (t[0] != c.V) mean = add(mean, sub(X(t[1]), X(t[0]))), ++nrim;
+  mean = mul(mean, 1.0 / std::max(nrim, 1));
+  auto put = [&](V3 x) { m.x[Vi] = x[0], m.y[Vi] = x[1], m.z[Vi] = x[2]; };
+  double qb = cap_quality(c);
+  V3 best = x0, x1 = add(xV, mean);
+  put(x1);
+  if (double q1 = cap_quality(c); q1 > qb) qb = q1, best = x1;
+  double step = 0.25 * std::max(norm(sub(x0, xV)), norm(mean)), reach = 8 * step;
+  for (int it = 0; it < 40 && step > 0; ++it) {  // step halved when no move helps
+    bool moved = false;
+    for (int d = 0; d < 6; ++d) {
+      V3 x = best;
+      x[d / 2] += (d % 2 ? -step : step);
+      if (norm(sub(x, xV)) > reach) continue;
+      put(x);
+      double q = cap_quality(c);
+      if (q > qb) qb = q, best = x, moved = true;
+    }
+    if (!moved) step *= 0.5;
+  }
+  put(best);
+  c.moved += norm(sub(best, x0));
+  return qb;
+}
+
+void Builder::log_cap(const Cap& c, double q, const std::string& when) {
+  std::string at = "the junction along edge " + std::to_string(c.edge) + " ends on " + c.faces + " at " + fmt(X(c.V));
+  if (q > 0) {
+    log("sweep: " + at + ", not one of its faces: end cap of " + std::to_string(c.tets.size()) + " tets and " +
+        std::to_string(c.pyramids.size()) + " pyramids" + when + ", min scaled Jacobian " + std::to_string(q) +
+        " (the vertex's shell node moved by " + std::to_string(c.moved) + ")");
+    return;
+  }
+  log("sweep: " + at + ", not one of its faces; no position of the vertex's shell node makes its end cap (" +
+      std::to_string(c.tets.size()) + " tets, " + std::to_string(c.pyramids.size()) + " pyramids) valid" + when + ": the prisms stay");
+  if (!std::getenv("MESHFLOW_SWEEP_DEBUG")) return;
+  for (auto* L : {&c.tets, &c.pyramids})
+    for (auto& e : *L) {
+      std::vector<double> X3;
+      for (auto n : e) X3.push_back(m.x[n]), X3.push_back(m.y[n]), X3.push_back(m.z[n]);
+      auto eq = model::element_quality(e.size() == 4 ? model::Shape::Tet : model::Shape::Pyramid, 1, X3.data());
+      if (eq.valid) continue;
+      std::string l = std::string("  invalid cap ") + (e.size() == 4 ? "tet" : "pyramid") + " (scaled Jacobian " +
+                      std::to_string(eq.scaled_jacobian) + "):";
+      for (auto n : e) l += " " + std::to_string(n) + fmt(X(n));
+      log(l);
     }
 }
 
@@ -1622,11 +1648,51 @@ void Builder::volume() {
   };
   std::vector<char> bad_before(P.size(), 0);
   for (std::size_t i = 0; i < P.size(); ++i) bad_before[i] = !prism_ok(P[i]);
-  untangle(P);
-  // junction ends on a third face: the prisms there become the end cap's tets and pyramids
+  // Junction ends on a third face: the prisms there become the end cap's tets and pyramids, decided
+  // before untangling (which would otherwise move and thin the cap's V' with its prisms). The
+  // other prisms are untangled; a cap made invalid by that (its rim nodes' shell nodes moved) is
+  // placed again, and where that fails its prisms stay (checked below like the others).
+  find_caps(P, pface);
   std::vector<char> capped(P.size(), 0);
+  {
+    std::vector<Cap> kept;
+    for (auto& c : caps) {
+      V3 x0 = X(c.Vi);
+      bool overlaps = false;  // with a cap made before (two junction ends on one triangle of a thin face)
+      for (auto i : c.fan) overlaps = overlaps || capped[i];
+      if (overlaps) {
+        log("sweep: the junction along edge " + std::to_string(c.edge) + " ends on " + c.faces + " at " + fmt(X(c.V)) +
+            ", not one of its faces, next to the end cap of another junction on the same prisms: no cap");
+        continue;
+      }
+      if (double q = place_cap(c); q > 0) {
+        for (auto i : c.fan) capped[i] = 1;
+        kept.push_back(std::move(c));
+      } else {
+        log_cap(c, q, "");
+        m.x[c.Vi] = x0[0], m.y[c.Vi] = x0[1], m.z[c.Vi] = x0[2];
+      }
+    }
+    caps = std::move(kept);
+  }
+  std::vector<std::vector<std::uint32_t>> Pu;
+  for (std::size_t i = 0; i < P.size(); ++i)
+    if (!capped[i]) Pu.push_back(P[i]);
+  untangle(Pu);  // reads the prisms' nodes, moves shell nodes
   std::vector<std::vector<std::uint32_t>> cap_tets, cap_pyramids;
-  end_caps(P, pface, capped, cap_tets, cap_pyramids);
+  for (auto& c : caps) {
+    double q = cap_quality(c);
+    std::string when = "";
+    if (!(q > 0)) q = place_cap(c), when = " (placed again after untangling)";
+    log_cap(c, q, when);
+    if (!(q > 0)) {
+      for (auto i : c.fan) capped[i] = 0;
+      continue;
+    }
+    cap_tets.insert(cap_tets.end(), c.tets.begin(), c.tets.end());
+    cap_pyramids.insert(cap_pyramids.end(), c.pyramids.begin(), c.pyramids.end());
+    ++R.end_caps;
+  }
   std::vector<std::size_t> bad_after;
   for (std::size_t i = 0; i < P.size(); ++i)
     if (!capped[i] && !prism_ok(P[i])) bad_after.push_back(i);
@@ -1653,7 +1719,7 @@ void Builder::volume() {
     ++R.prisms;
   }
   if (prisms.size() == 0) m.blocks.pop_back();
-  if (!cap_tets.empty()) {  // oriented by end_caps
+  if (!cap_tets.empty()) {  // oriented by find_caps
     auto& tb = m.block(model::Shape::Tet, 1, 3, 1);
     for (auto& t : cap_tets) tb.add(t.data());
     auto& pb = m.block(model::Shape::Pyramid, 1, 3, 1);
