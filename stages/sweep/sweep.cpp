@@ -1613,8 +1613,9 @@ void Builder::volume() {
   }
   // A wall triangle two of whose nodes are swept to one shell node has a collapsed edge, which no
   // node move repairs: the two strip corners PA and PB of a junction's end cross-section lying on
-  // a third face that is no partner of that junction (sweep.hpp, KNOWN LIMITATION; DLR-F6's pylon
-  // nose on the nacelle). Named here instead of as an inverted prism after untangling.
+  // a third face that is no partner of that junction (sweep.hpp, "Junction ends on a third
+  // face", still open; DLR-F6's pylon nose on the nacelle). Named here instead of as an inverted
+  // prism after untangling.
   for (std::size_t i = 0; i < P.size(); ++i) {
     int a = -1, b = -1;
     for (int p = 0; p < 3 && a < 0; ++p)
@@ -1710,7 +1711,18 @@ void Builder::volume() {
     }
     log("invalid prisms after untangle: " + std::to_string(bad_after.size()));
   }
-  if (!bad_after.empty()) throw StageError(untangle_failure(P, pface, bad_before, bad_after));
+  if (!bad_after.empty()) {
+    // the capped prisms are tets and pyramids now: counted apart
+    std::size_t n_capped = 0, n_capped_bad = 0;
+    for (std::size_t i = 0; i < P.size(); ++i)
+      if (capped[i]) ++n_capped, n_capped_bad += bad_before[i], bad_before[i] = 0;
+    std::string msg = untangle_failure(P, pface, bad_before, bad_after);
+    if (R.end_caps)
+      msg += ". Not counted: the " + std::to_string(n_capped) + " prisms (" + std::to_string(n_capped_bad) +
+             " inverted before untangling) at the " + std::to_string(R.end_caps) +
+             " junction ends on a third face that end caps replace (valid tets and pyramids)";
+    throw StageError(msg);
+  }
   auto& prisms = m.block(model::Shape::Prism, 1, 3, 1);
   for (std::size_t i = 0; i < P.size(); ++i) {
     if (capped[i]) continue;
@@ -1751,11 +1763,12 @@ void Builder::volume() {
 // The message when untangling leaves inverted prisms. Untangling smooths directions over the
 // neighbours of inverted prisms and thins the layer where they stay inverted, so the prisms
 // still inverted at its end may be valid ones it moved (DLR-F6 at junction_angle_deg 170: the
-// nacelle's face 0, thinned to 3e-4 mm, while the 13 inverted before were on other faces). The
-// message names the prisms inverted before untangling first (by face), and the first of them,
-// and says when one of its wall nodes is a strip corner (PA or PB) of the end cross-section of a
-// junction that ends on that prism's face without it being one of the junction's faces (that
-// node is swept to the junction's outer corner PC, across the face: sweep.hpp, KNOWN LIMITATION).
+// nacelle's face 0, while those inverted before were on other faces). The message names the
+// prisms inverted before untangling first (by face; the caller leaves out those replaced by end
+// caps), and the first of them, and says when one of its wall nodes is a strip corner (PA or PB)
+// of the end cross-section of a junction that ends on that prism's face without it being one of
+// the junction's faces (that node is swept to the junction's outer corner PC, across the face:
+// sweep.hpp, "Junction ends on a third face", where no end cap could replace those prisms).
 std::string Builder::untangle_failure(const std::vector<std::vector<std::uint32_t>>& P, const std::vector<int>& pface,
                                       const std::vector<char>& bad_before, const std::vector<std::size_t>& bad_after) {
   auto by_face = [&](const std::vector<std::size_t>& list) {
@@ -1787,14 +1800,17 @@ std::string Builder::untangle_failure(const std::vector<std::vector<std::uint32_
   std::map<std::uint32_t, std::vector<const Junction*>> corner_of;
   for (auto& j : J)
     for (std::size_t k : {std::size_t(0), j.pa.size() - 1}) corner_of[j.pa[k]].push_back(&j), corner_of[j.pb[k]].push_back(&j);
-  // the first wall node of prism i that is a strip corner of a junction ending on the prism's face
-  // without it being one of the junction's faces, and that junction (null if none)
+  // the first wall node of prism i that is a strip corner of junction ends on the prism's face
+  // without the face being one of those junctions' faces, and the first such junction (null if
+  // none). A corner shared by the ends of two junctions one of which has the face (DLR-F6's pylon
+  // junction where the wing's lower surface changes face) is not foreign to it.
   auto foreign_end = [&](std::size_t i) -> std::pair<std::uint32_t, const Junction*> {
     for (int c = 0; c < 3; ++c) {
       auto it = corner_of.find(P[i][c]);
-      if (it != corner_of.end())
-        for (auto* j : it->second)
-          if (pface[i] != j->A && pface[i] != j->B) return {P[i][c], j};
+      if (it == corner_of.end()) continue;
+      bool own = false;
+      for (auto* j : it->second) own = own || pface[i] == j->A || pface[i] == j->B;
+      if (!own) return {P[i][c], it->second.front()};
     }
     return {0, nullptr};
   };
@@ -1809,7 +1825,7 @@ std::string Builder::untangle_failure(const std::vector<std::vector<std::uint32_
     hint = ": its wall node at " + fmt(X(w)) + " is a strip corner of the end cross-section of the junction along edge " +
            std::to_string(j->edge) + " (faces " + std::to_string(j->A) + " and " + std::to_string(j->B) +
            "), swept to that junction's outer corner, because the junction ends on face " + std::to_string(F) +
-           ", which is not one of its faces (sweep.hpp, KNOWN LIMITATION). Make the edges of face " + std::to_string(F) +
+           ", which is not one of its faces and no end cap could replace the prisms there (sweep.hpp, \"Junction ends on a third face\"). Make the edges of face " + std::to_string(F) +
            " at that end junctions too (shell.junction_angle_deg, shell.junction_with), or use shell.topology O";
   else
     hint = " (the shell is too close to the wall or folds there); reduce shell.thickness or shell.max_gradient, or refine the "
