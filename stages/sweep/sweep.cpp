@@ -355,6 +355,23 @@ void Builder::junction_ends() {
       return found;
     };
     auto station = [&](int b, int end) -> const Junction::Station& { return end == 0 ? J[b].st.front() : J[b].st.back(); };
+    // A side edge leaving V at an obtuse angle to the strip (DLR-F6's pylon nose, where the
+    // pylon-nacelle curve goes on from the junction edge onto the pylon's leading-edge face) has
+    // its point nearest the strip corner at V itself: cut there, the strip's end would have no
+    // width (its corner 2e-4 mm from V) and the third face's triangle (V, PA, PB) would collapse.
+    // Such a corner stays on the face (a face node, as without a side edge) and V a node of the
+    // face's mesh beside the strip's end (sweep.hpp, "Junction ends on a third face"). Only where
+    // the side edge is one of a third wall face (no A or B of a block ending at V).
+    std::set<int> roles;  // the A and B faces of the blocks ending at V
+    for (auto [b, end] : list) roles.insert(J[b].A), roles.insert(J[b].B);
+    auto obtuse = [&](int e, V3 P) {
+      if (e < 0) return false;
+      bool third = false;  // only beside a third wall face
+      for (int f : S.edge_faces(e)) third = third || (wall[f] && !roles.count(f));
+      if (!third) return false;
+      V3 xv = v3(S.vertex_point(V));
+      return norm(sub(v3(S.project_to_edge(e, cv(P)).point), xv)) < 0.5 * norm(sub(P, xv));
+    };
     // PA: per distinct A face; unified when the A faces share the edge leaving V
     std::map<int, std::vector<std::pair<int, int>>> byA;
     for (auto [b, end] : list) byA[J[b].A].push_back({b, end});
@@ -367,6 +384,7 @@ void Builder::junction_ends() {
       V3 PA{0, 0, 0}, PC{0, 0, 0};
       for (auto [b, end] : bl) PA = add(PA, station(b, end).PA), PC = add(PC, station(b, end).PC);
       PA = mul(PA, 1.0 / bl.size()), PC = mul(PC, 1.0 / bl.size());
+      if (e >= 0 && !edge_corner.count(e) && obtuse(e, PA)) e = -1;
       if (e >= 0) {
         if (edge_corner.count(e)) {
           pa_node[A] = edge_corner[e], pc_node[A] = edge_corner_pc[e];
@@ -427,6 +445,7 @@ void Builder::junction_ends() {
       for (auto [b, end] : bl) PB = add(PB, station(b, end).PB);
       PB = mul(PB, 1.0 / bl.size());
       int e = side_edge(B);
+      if (e >= 0 && !edge_corner.count(e) && obtuse(e, PB)) e = -1;
       if (e >= 0 && !edge_corner.count(e)) {
         // B faces sharing the side edge (the trailing-edge face and the wing surface, both
         // partners of a body's junctions) share one corner on it: the mean of all their PB
@@ -1240,8 +1259,9 @@ void Builder::untangle(std::vector<std::vector<std::uint32_t>>& P) {
 
 // ── junction end caps (sweep.hpp, "Junction ends on a third face") ──────────────────────
 // A junction end (V, PA, PC, PB) whose end face is no other block's, where the wall triangles at
-// V (all on faces other than the junction's: A and B have only strip quads at V) form one fan
-// from the edge V-PA to the edge V-PB, PA and PB swept to PC and V to its vertex image V': each
+// V (on faces other than the junction's, and on A or B when a strip corner is a face node beside
+// a side edge: see junction_ends) form one fan from the edge V-PA to the edge V-PB, PA and PB
+// swept to PC and V to its vertex image V': each
 // prism of the fan (V, a, b | V', a', b') becomes the tet (V, a, b, V') and the pyramid
 // (a, b, b', a'; V'), so that the fan's side faces are split along a-V' (conforming between
 // neighbours: both halves have apex V'), and the pocket between the end face and the fan's first
@@ -1276,7 +1296,6 @@ void Builder::find_caps(const std::vector<std::vector<std::uint32_t>>& P, const 
       std::uint32_t& Vi = cap.Vi;
       bool ok = true;
       for (auto i : cap.fan) {
-        if (pface[i] == j.A || pface[i] == j.B) ok = false;
         for (int c = 0; c < 3; ++c)
           if (P[i][c] == V) {
             if (Vi != kNone && Vi != P[i][3 + c]) ok = false;
@@ -1334,33 +1353,38 @@ double Builder::cap_quality(const Cap& c) const {
   return w;
 }
 
-// V' by pattern search from its position and from V + the fan's mean layer vector (V' may be much
-// thinner), step a quarter of the larger of the two lengths, within twice that length of V; V'
+// V' by pattern search (26 directions, step halved when none helps) from each of: its position,
+// V + the fan's mean layer vector (V' may be much thinner), the centroid of the fan's tops; the
+// step a quarter of the larger of the first two lengths, V' within twice that length of V; V'
 // left at the best position found. Returns the cap's quality there (cap_quality).
 double Builder::place_cap(Cap& c) {
   std::uint32_t Vi = c.Vi;
-  V3 xV = X(c.V), x0 = X(Vi), mean{0, 0, 0};
+  V3 xV = X(c.V), x0 = X(Vi), mean{0, 0, 0}, tops{0, 0, 0};
   int nrim = 0;
   for (auto& t : c.pyramids)
-    if (t[0] != c.V) mean = add(mean, sub(X(t[1]), X(t[0]))), ++nrim;
-  mean = mul(mean, 1.0 / std::max(nrim, 1));
+    if (t[0] != c.V) mean = add(mean, sub(X(t[1]), X(t[0]))), tops = add(tops, add(X(t[1]), X(t[2]))), ++nrim;
+  mean = mul(mean, 1.0 / std::max(nrim, 1)), tops = mul(tops, 0.5 / std::max(nrim, 1));
   auto put = [&](V3 x) { m.x[Vi] = x[0], m.y[Vi] = x[1], m.z[Vi] = x[2]; };
-  double qb = cap_quality(c);
-  V3 best = x0, x1 = add(xV, mean);
-  put(x1);
-  if (double q1 = cap_quality(c); q1 > qb) qb = q1, best = x1;
-  double step = 0.25 * std::max(norm(sub(x0, xV)), norm(mean)), reach = 8 * step;
-  for (int it = 0; it < 40 && step > 0; ++it) {  // step halved when no move helps
-    bool moved = false;
-    for (int d = 0; d < 6; ++d) {
-      V3 x = best;
-      x[d / 2] += (d % 2 ? -step : step);
-      if (norm(sub(x, xV)) > reach) continue;
-      put(x);
-      double q = cap_quality(c);
-      if (q > qb) qb = q, best = x, moved = true;
+  double step0 = 0.25 * std::max(norm(sub(x0, xV)), norm(mean)), reach = 8 * step0;
+  V3 best = x0;
+  double qb = -INFINITY;
+  for (V3 start : {x0, add(xV, mean), tops}) {
+    if (norm(sub(start, xV)) > reach) continue;
+    put(start);
+    V3 b = start;
+    double q = cap_quality(c), step = step0;
+    for (int it = 0; it < 40 && step > 0; ++it) {
+      bool moved = false;
+      for (int d = 0; d < 27; ++d) {
+        if (d == 13) continue;  // (0, 0, 0)
+        V3 x{b[0] + (d % 3 - 1) * step, b[1] + (d / 3 % 3 - 1) * step, b[2] + (d / 9 - 1) * step};
+        if (norm(sub(x, xV)) > reach) continue;
+        put(x);
+        if (double qx = cap_quality(c); qx > q) q = qx, b = x, moved = true;
+      }
+      if (!moved) step *= 0.5;
     }
-    if (!moved) step *= 0.5;
+    if (q > qb) qb = q, best = b;
   }
   put(best);
   c.moved += norm(sub(best, x0));

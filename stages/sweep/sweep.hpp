@@ -78,16 +78,21 @@
 //   - split does not split the caps (their pyramids' bases are side faces of layered prisms and
 //     q3 is split in two directions): the layered mesh is non-conforming there and split refuses
 //     it (the open U passes curve and optimise, then stops at split);
-//   - a fan of one triangle (V, PA, PB) on a small F (DLR-F6's pylon nose on the nacelle at
-//     junction_angle_deg 150, 11 mm: the junction edge and F's edge with A are nearly tangent, so
-//     PA is 2e-4 mm from V) whose prism collapses (both swept to PC): sweep refuses it before
-//     untangling, naming the junction and F; junction_angle_deg 170 makes those edges junctions;
-//   - DLR-F6 at junction_angle_deg 170: the ends of the pylon junctions along edges 40 and 158 on
-//     the wing's 0.6 mm blunt trailing-edge face 9 (0.6 mm apart, their fans share a triangle,
-//     whose sliver prisms' outer faces are twisted) get no valid cap; both ends of edge 50 are
-//     capped; 5 prisms stay inverted after untangling (faces 0 and 53, the first at the shared
-//     end of the pylon junctions along edges 159 and 182 where the wing's lower surface changes
-//     face: not a third face).
+//   - a strip corner whose side edge leaves V at an obtuse angle to the strip (DLR-F6's pylon
+//     nose on the nacelle at junction_angle_deg 150: the pylon-nacelle curve goes on from the
+//     junction edge onto F, the pylon's 11 mm leading-edge face) would be cut at V itself (2e-4
+//     mm away), and F's triangle (V, PA, PB) would collapse (both swept to PC): beside a third
+//     face such a corner is a face node on its face (junction_ends), V a node of that face's
+//     mesh, and the fan at V includes that face's triangles. There the cap stays just invalid
+//     (min scaled Jacobian -0.004: three of its pyramids' twisted bases meet at PC; moving PC
+//     too did not help) and is refused;
+//   - DLR-F6: the ends of the pylon junctions along edges 40 and 158 on the wing's 0.6 mm blunt
+//     trailing-edge face 9 (0.6 mm apart, their fans share a triangle, whose sliver prisms'
+//     outer faces are twisted) get no valid cap; both ends of edge 50 are capped at
+//     junction_angle_deg 170. Sweep stops after untangling, 6 prisms inverted (150; 5 at 170),
+//     on the nacelle's face 0 (valid before untangling moved them) and on face 53 (the shared end
+//     of the pylon junctions along edges 159 and 182 where the wing's lower surface changes face:
+//     not a third face).
 // Wall nodes are swept to their shell images by the shell's fields (vertex value, edge field,
 // face grid: the shell's RULE FOR SWEEP); nodes of the strip boundaries map to PC.
 // Wall|other edges that are not junctions (topology O, or tags not in junction_with): the
