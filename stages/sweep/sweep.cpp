@@ -1826,8 +1826,9 @@ std::string Builder::untangle_failure(const std::vector<std::vector<std::uint32_
     for (std::size_t k : {std::size_t(0), j.pa.size() - 1}) corner_of[j.pa[k]].push_back(&j), corner_of[j.pb[k]].push_back(&j);
   // the first wall node of prism i that is a strip corner of junction ends on the prism's face
   // without the face being one of those junctions' faces, and the first such junction (null if
-  // none). A corner shared by the ends of two junctions one of which has the face (DLR-F6's pylon
-  // junction where the wing's lower surface changes face) is not foreign to it.
+  // none). A corner shared by the ends of two junctions one of which has the face (DLR-F6's
+  // junctions along edges 159 and 182, faces 35 | 46 and 46 | 53, at their common vertex) is not
+  // foreign to it.
   auto foreign_end = [&](std::size_t i) -> std::pair<std::uint32_t, const Junction*> {
     for (int c = 0; c < 3; ++c) {
       auto it = corner_of.find(P[i][c]);

@@ -90,9 +90,11 @@
 //     trailing-edge face 9 (0.6 mm apart, their fans share a triangle, whose sliver prisms'
 //     outer faces are twisted) get no valid cap; both ends of edge 50 are capped at
 //     junction_angle_deg 170. Sweep stops after untangling, 6 prisms inverted (150; 5 at 170),
-//     on the nacelle's face 0 (valid before untangling moved them) and on face 53 (the shared end
-//     of the pylon junctions along edges 159 and 182 where the wing's lower surface changes face:
-//     not a third face).
+//     on the nacelle's face 0 (valid before untangling moved them) and on face 53, B of the
+//     0.67 mm junction along edge 182 (not a third face): at its far end the strip corner PB,
+//     2.3 mm from the edge, is a face node lying on face 53's boundary edge 160 (the strip is
+//     wider than the face there; shell's face-width limit skips exits through an edge sharing a
+//     vertex with the junction edge), so face 53's mesh has a triangle of three collinear nodes.
 // Wall nodes are swept to their shell images by the shell's fields (vertex value, edge field,
 // face grid: the shell's RULE FOR SWEEP); nodes of the strip boundaries map to PC.
 // Wall|other edges that are not junctions (topology O, or tags not in junction_with): the
