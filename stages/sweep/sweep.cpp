@@ -270,7 +270,7 @@ class Builder {
   std::string untangle_failure(const std::vector<std::vector<std::uint32_t>>& P, const std::vector<int>& pface,
                                const std::vector<char>& bad_before, const std::vector<std::size_t>& bad_after);
   void untangle(std::vector<std::vector<std::uint32_t>>& prisms);
-  // junction ends on a third face (end_caps, see the definitions)
+  // junction ends on a third face (find_caps, place_cap: see their definitions)
   struct Cap {
     int edge = -1;
     std::uint32_t V = kNone, Vi = kNone;             // the end vertex's node and its shell node V'
