@@ -88,6 +88,10 @@
 //     "equal":[["w<e>","j<e>a","j<e>b","j<e>c"], [x..0a, x..bc, x1..0a, x1..bc], [x..0b, x..ac, ...]],
 //     "stations": {edge parameter, P0, PA (+uv on A), PB (+uv on B), PC} per station}
 //   The division constraints for the IP are the "equal" groups of all blocks.
+// A junction ending at a vertex whose other wall faces include a third face (neither A nor B of a
+// block there) gets no block of its own at that end: sweep replaces the third face's prisms at
+// the vertex by an end cap of tets and pyramids closing onto the hex's end face (sweep.hpp,
+// "Junction ends on a third face"), from these fields as they are.
 // Sweep of a junction face strip: wall nodes on "j<e>a" map to the corner curve PC
 // (interpolated linearly in the edge parameter between stations), not to the face field.
 //

@@ -270,7 +270,21 @@ class Builder {
   std::string untangle_failure(const std::vector<std::vector<std::uint32_t>>& P, const std::vector<int>& pface,
                                const std::vector<char>& bad_before, const std::vector<std::size_t>& bad_after);
   void untangle(std::vector<std::vector<std::uint32_t>>& prisms);
-  void clear_crossings(const std::vector<std::vector<std::uint32_t>>& prisms);
+  void clear_crossings(const std::vector<std::vector<std::uint32_t>>& prisms, const std::set<std::uint32_t>& frozen);
+  // junction ends on a third face (find_caps, place_cap: see their definitions)
+  struct Cap {
+    int edge = -1;
+    std::uint32_t V = kNone, Vi = kNone;             // the end vertex's node and its shell node V'
+    std::vector<std::size_t> fan;                    // the prisms at V
+    std::vector<std::vector<std::uint32_t>> tets, pyramids;
+    std::string faces;                               // the fan's faces, for messages
+    double moved = 0;                                // how far V' was moved
+  };
+  std::vector<Cap> caps;
+  void find_caps(const std::vector<std::vector<std::uint32_t>>& P, const std::vector<int>& pface);
+  double cap_quality(const Cap& c) const;
+  double place_cap(Cap& c);
+  void log_cap(const Cap& c, double q, const std::string& when);
 };
 
 double Builder::edge_h(int e, double t, double hmax) const {
@@ -342,6 +356,23 @@ void Builder::junction_ends() {
       return found;
     };
     auto station = [&](int b, int end) -> const Junction::Station& { return end == 0 ? J[b].st.front() : J[b].st.back(); };
+    // A side edge leaving V at an obtuse angle to the strip (DLR-F6's pylon nose, where the
+    // pylon-nacelle curve goes on from the junction edge onto the pylon's leading-edge face) has
+    // its point nearest the strip corner at V itself: cut there, the strip's end would have no
+    // width (its corner 2e-4 mm from V) and the third face's triangle (V, PA, PB) would collapse.
+    // Such a corner stays on the face (a face node, as without a side edge) and V a node of the
+    // face's mesh beside the strip's end (sweep.hpp, "Junction ends on a third face"). Only where
+    // the side edge is one of a third wall face (no A or B of a block ending at V).
+    std::set<int> roles;  // the A and B faces of the blocks ending at V
+    for (auto [b, end] : list) roles.insert(J[b].A), roles.insert(J[b].B);
+    auto obtuse = [&](int e, V3 P) {
+      if (e < 0) return false;
+      bool third = false;  // only beside a third wall face
+      for (int f : S.edge_faces(e)) third = third || (wall[f] && !roles.count(f));
+      if (!third) return false;
+      V3 xv = v3(S.vertex_point(V));
+      return norm(sub(v3(S.project_to_edge(e, cv(P)).point), xv)) < 0.5 * norm(sub(P, xv));
+    };
     // PA: per distinct A face; unified when the A faces share the edge leaving V
     std::map<int, std::vector<std::pair<int, int>>> byA;
     for (auto [b, end] : list) byA[J[b].A].push_back({b, end});
@@ -354,6 +385,7 @@ void Builder::junction_ends() {
       V3 PA{0, 0, 0}, PC{0, 0, 0};
       for (auto [b, end] : bl) PA = add(PA, station(b, end).PA), PC = add(PC, station(b, end).PC);
       PA = mul(PA, 1.0 / bl.size()), PC = mul(PC, 1.0 / bl.size());
+      if (e >= 0 && !edge_corner.count(e) && obtuse(e, PA)) e = -1;
       if (e >= 0) {
         if (edge_corner.count(e)) {
           pa_node[A] = edge_corner[e], pc_node[A] = edge_corner_pc[e];
@@ -414,6 +446,7 @@ void Builder::junction_ends() {
       for (auto [b, end] : bl) PB = add(PB, station(b, end).PB);
       PB = mul(PB, 1.0 / bl.size());
       int e = side_edge(B);
+      if (e >= 0 && !edge_corner.count(e) && obtuse(e, PB)) e = -1;
       if (e >= 0 && !edge_corner.count(e)) {
         // B faces sharing the side edge (the trailing-edge face and the wing surface, both
         // partners of a body's junctions) share one corner on it: the mean of all their PB
@@ -1243,7 +1276,7 @@ void Builder::untangle(std::vector<std::vector<std::uint32_t>>& P) {
 // that would make an element invalid is undone at that element's nodes, which are then kept.
 // Rounds repeat until nothing crosses or nothing can move; what is left is reported (stats
 // outer_crossings) and tet refuses it by name.
-void Builder::clear_crossings(const std::vector<std::vector<std::uint32_t>>& P) {
+void Builder::clear_crossings(const std::vector<std::vector<std::uint32_t>>& P, const std::set<std::uint32_t>& frozen) {
   constexpr double kShrink = 0.8, kMinScale = 0.25, kLipschitz = 0.15;
   constexpr int kRounds = 40;
   std::vector<std::vector<std::uint32_t>> H;
@@ -1336,7 +1369,7 @@ void Builder::clear_crossings(const std::vector<std::vector<std::uint32_t>>& P) 
   std::vector<std::array<int, 2>> left;
   // rounds of thinning at the crossing pairs not in `ignore`; leaves the pairs still crossing
   auto attempt = [&](const std::set<std::array<int, 2>>& ignore) {
-    x0.clear(), scale.clear(), kept.clear();
+    x0.clear(), scale.clear(), kept = frozen;
     for (int round = 0;; ++round) {
       for (std::size_t i = 0; i < pts.size(); ++i) pts[i] = {m.x[i], m.y[i], m.z[i]};
       auto rep = shell::self_intersections(pts, tris);
@@ -1430,6 +1463,164 @@ void Builder::clear_crossings(const std::vector<std::vector<std::uint32_t>>& P) 
                                   : std::string()) +
         (last ? "; " + std::to_string(last) + " pairs are left, which thinning does not clear (near-field elements overlap there)"
               : std::string("; none is left")));
+}
+
+// ── junction end caps (sweep.hpp, "Junction ends on a third face") ──────────────────────
+// A junction end (V, PA, PC, PB) whose end face is no other block's, where the wall triangles at
+// V (on faces other than the junction's, and on A or B when a strip corner is a face node beside
+// a side edge: see junction_ends) form one fan from the edge V-PA to the edge V-PB, PA and PB
+// swept to PC and V to its vertex image V': each
+// prism of the fan (V, a, b | V', a', b') becomes the tet (V, a, b, V') and the pyramid
+// (a, b, b', a'; V'), so that the fan's side faces are split along a-V' (conforming between
+// neighbours: both halves have apex V'), and the pocket between the end face and the fan's first
+// and last side faces is the pyramid (V, PA, PC, PB; V'). Its outer surface is then the prism
+// tops (V', a', b'): the edge V'-PC has two faces. V' is used by these elements only, so it is
+// moved (place_cap) to maximise their smallest scaled Jacobian.
+void Builder::find_caps(const std::vector<std::vector<std::uint32_t>>& P, const std::vector<int>& pface) {
+  auto det3 = [](V3 a, V3 b, V3 c) { return dot(a, cross(b, c)); };
+  std::map<std::vector<std::uint32_t>, int> end_faces;  // sorted end-face nodes -> blocks ending with it
+  auto end_face = [&](const Junction& j, std::size_t k) {
+    std::vector<std::uint32_t> f{j.p0[k], j.pa[k], j.pc[k], j.pb[k]};
+    std::sort(f.begin(), f.end());
+    return f;
+  };
+  for (auto& j : J)
+    for (std::size_t k : {std::size_t(0), j.p0.size() - 1}) ++end_faces[end_face(j, k)];
+  std::map<std::uint32_t, std::vector<std::size_t>> at;  // wall node -> prisms having it
+  for (std::size_t i = 0; i < P.size(); ++i)
+    for (int c = 0; c < 3; ++c) at[P[i][c]].push_back(i);
+  for (auto& j : J)
+    for (std::size_t k : {std::size_t(0), j.p0.size() - 1}) {
+      std::uint32_t V = j.p0[k], PA = j.pa[k], PB = j.pb[k], PC = j.pc[k];
+      if (end_faces[end_face(j, k)] > 1 || PA == PB || !at.count(V)) {
+        if (std::getenv("MESHFLOW_SWEEP_DEBUG"))
+          log("no end cap for the junction along edge " + std::to_string(j.edge) + " at " + fmt(X(V)) + ": " +
+              (end_faces[end_face(j, k)] > 1 ? "its end face is another block's too" : PA == PB ? "PA = PB" : "no prism at the vertex"));
+        continue;
+      }
+      Cap cap;
+      cap.edge = j.edge, cap.V = V, cap.fan = at[V];
+      std::map<std::uint32_t, int> deg;  // rim node -> fan triangles using the edge V-rim
+      std::uint32_t& Vi = cap.Vi;
+      bool ok = true;
+      for (auto i : cap.fan) {
+        for (int c = 0; c < 3; ++c)
+          if (P[i][c] == V) {
+            if (Vi != kNone && Vi != P[i][3 + c]) ok = false;
+            Vi = P[i][3 + c];
+          } else {
+            ++deg[P[i][c]];
+            if ((P[i][c] == PA || P[i][c] == PB) && P[i][3 + c] != PC) ok = false;
+          }
+      }
+      for (auto [n, d] : deg)
+        if (d != ((n == PA || n == PB) ? 1 : 2)) ok = false;
+      if (!ok || Vi == kNone || m.node_entity_dim[Vi] != 3 || !deg.count(PA) || !deg.count(PB) || deg.size() != cap.fan.size() + 1) {
+        if (std::getenv("MESHFLOW_SWEEP_DEBUG")) {
+          std::string l = "no end cap for the junction along edge " + std::to_string(j.edge) + " at " + fmt(X(V)) + ": " +
+                          std::to_string(cap.fan.size()) + " prisms at the vertex, rim";
+          for (auto [n, d] : deg) l += " " + std::to_string(n) + (n == PA ? "(PA)" : n == PB ? "(PB)" : "") + "x" + std::to_string(d);
+          log(l + (ok ? "" : "; a prism on A or B, or PA/PB not swept to PC"));
+        }
+        continue;
+      }
+      // the elements, oriented by the side of the wall V' is on (tet (V, a, b, V') positive)
+      for (auto i : cap.fan) {
+        int c = 0;
+        while (P[i][c] != V) ++c;
+        int a = (c + 1) % 3, b = (c + 2) % 3;
+        if (det3(sub(X(P[i][a]), X(V)), sub(X(P[i][b]), X(V)), sub(X(Vi), X(V))) < 0) std::swap(a, b);
+        std::uint32_t na = P[i][a], nb = P[i][b], ia = P[i][3 + a], ib = P[i][3 + b];
+        if (ia == ib) ok = false;  // a collapsed prism (refused before untangling)
+        cap.tets.push_back({V, na, nb, Vi});
+        cap.pyramids.push_back({na, ia, ib, nb, Vi});  // base normal towards the apex (Gmsh's pyramid)
+      }
+      if (det3(sub(X(PA), X(V)), sub(X(PB), X(V)), sub(X(Vi), X(V))) > 0)
+        cap.pyramids.push_back({V, PA, PC, PB, Vi});
+      else
+        cap.pyramids.push_back({V, PB, PC, PA, Vi});
+      if (!ok) continue;
+      std::set<int> on;
+      for (auto i : cap.fan) on.insert(pface[i]);
+      for (int f : on) cap.faces += (cap.faces.empty() ? "" : ", ") + std::to_string(f);
+      cap.faces = (on.size() > 1 ? "wall faces " : "wall face ") + cap.faces;
+      caps.push_back(std::move(cap));
+    }
+}
+
+// smallest scaled Jacobian of the cap's elements (below 0: one is inverted, by how much)
+double Builder::cap_quality(const Cap& c) const {
+  double w = INFINITY;
+  for (auto* L : {&c.tets, &c.pyramids})
+    for (auto& e : *L) {
+      std::vector<double> X3;
+      for (auto n : e) X3.push_back(m.x[n]), X3.push_back(m.y[n]), X3.push_back(m.z[n]);
+      auto q = model::element_quality(e.size() == 4 ? model::Shape::Tet : model::Shape::Pyramid, 1, X3.data());
+      w = std::min(w, q.valid ? std::max(q.scaled_jacobian, 1e-12) : std::min(q.scaled_jacobian, 0.0) - 1);
+    }
+  return w;
+}
+
+// V' by pattern search (26 directions, step halved when none helps) from each of: its position,
+// V + the fan's mean layer vector (V' may be much thinner), the centroid of the fan's tops; the
+// step a quarter of the larger of the first two lengths, V' within twice that length of V; V'
+// left at the best position found. Returns the cap's quality there (cap_quality).
+double Builder::place_cap(Cap& c) {
+  std::uint32_t Vi = c.Vi;
+  V3 xV = X(c.V), x0 = X(Vi), mean{0, 0, 0}, tops{0, 0, 0};
+  int nrim = 0;
+  for (auto& t : c.pyramids)
+    if (t[0] != c.V) mean = add(mean, sub(X(t[1]), X(t[0]))), tops = add(tops, add(X(t[1]), X(t[2]))), ++nrim;
+  mean = mul(mean, 1.0 / std::max(nrim, 1)), tops = mul(tops, 0.5 / std::max(nrim, 1));
+  auto put = [&](V3 x) { m.x[Vi] = x[0], m.y[Vi] = x[1], m.z[Vi] = x[2]; };
+  double step0 = 0.25 * std::max(norm(sub(x0, xV)), norm(mean)), reach = 8 * step0;
+  V3 best = x0;
+  double qb = -INFINITY;
+  for (V3 start : {x0, add(xV, mean), tops}) {
+    if (norm(sub(start, xV)) > reach) continue;
+    put(start);
+    V3 b = start;
+    double q = cap_quality(c), step = step0;
+    for (int it = 0; it < 40 && step > 0; ++it) {
+      bool moved = false;
+      for (int d = 0; d < 27; ++d) {
+        if (d == 13) continue;  // (0, 0, 0)
+        V3 x{b[0] + (d % 3 - 1) * step, b[1] + (d / 3 % 3 - 1) * step, b[2] + (d / 9 - 1) * step};
+        if (norm(sub(x, xV)) > reach) continue;
+        put(x);
+        if (double qx = cap_quality(c); qx > q) q = qx, b = x, moved = true;
+      }
+      if (!moved) step *= 0.5;
+    }
+    if (q > qb) qb = q, best = b;
+  }
+  put(best);
+  c.moved += norm(sub(best, x0));
+  return qb;
+}
+
+void Builder::log_cap(const Cap& c, double q, const std::string& when) {
+  std::string at = "the junction along edge " + std::to_string(c.edge) + " ends on " + c.faces + " at " + fmt(X(c.V));
+  if (q > 0) {
+    log("sweep: " + at + ", not one of its faces: end cap of " + std::to_string(c.tets.size()) + " tets and " +
+        std::to_string(c.pyramids.size()) + " pyramids" + when + ", min scaled Jacobian " + std::to_string(q) +
+        " (the vertex's shell node moved by " + std::to_string(c.moved) + ")");
+    return;
+  }
+  log("sweep: " + at + ", not one of its faces; no position of the vertex's shell node makes its end cap (" +
+      std::to_string(c.tets.size()) + " tets, " + std::to_string(c.pyramids.size()) + " pyramids) valid" + when + ": the prisms stay");
+  if (!std::getenv("MESHFLOW_SWEEP_DEBUG")) return;
+  for (auto* L : {&c.tets, &c.pyramids})
+    for (auto& e : *L) {
+      std::vector<double> X3;
+      for (auto n : e) X3.push_back(m.x[n]), X3.push_back(m.y[n]), X3.push_back(m.z[n]);
+      auto eq = model::element_quality(e.size() == 4 ? model::Shape::Tet : model::Shape::Pyramid, 1, X3.data());
+      if (eq.valid) continue;
+      std::string l = std::string("  invalid cap ") + (e.size() == 4 ? "tet" : "pyramid") + " (scaled Jacobian " +
+                      std::to_string(eq.scaled_jacobian) + "):";
+      for (auto n : e) l += " " + std::to_string(n) + fmt(X(n));
+      log(l);
+    }
 }
 
 // ── periodic: the hi side as the exact image of the lo side ─────────────────────────────
@@ -1654,8 +1845,9 @@ void Builder::volume() {
   }
   // A wall triangle two of whose nodes are swept to one shell node has a collapsed edge, which no
   // node move repairs: the two strip corners PA and PB of a junction's end cross-section lying on
-  // a third face that is no partner of that junction (sweep.hpp, KNOWN LIMITATION; DLR-F6's pylon
-  // nose on the nacelle). Named here instead of as an inverted prism after untangling.
+  // a third face that is no partner of that junction (sweep.hpp, "Junction ends on a third
+  // face", still open; DLR-F6's pylon nose on the nacelle). Named here instead of as an inverted
+  // prism after untangling.
   for (std::size_t i = 0; i < P.size(); ++i) {
     int a = -1, b = -1;
     for (int p = 0; p < 3 && a < 0; ++p)
@@ -1689,10 +1881,54 @@ void Builder::volume() {
   };
   std::vector<char> bad_before(P.size(), 0);
   for (std::size_t i = 0; i < P.size(); ++i) bad_before[i] = !prism_ok(P[i]);
-  untangle(P);
+  // Junction ends on a third face: the prisms there become the end cap's tets and pyramids, decided
+  // before untangling (which would otherwise move and thin the cap's V' with its prisms). The
+  // other prisms are untangled; a cap made invalid by that (its rim nodes' shell nodes moved) is
+  // placed again, and where that fails its prisms stay (checked below like the others).
+  find_caps(P, pface);
+  std::vector<char> capped(P.size(), 0);
+  {
+    std::vector<Cap> kept;
+    for (auto& c : caps) {
+      V3 x0 = X(c.Vi);
+      bool overlaps = false;  // with a cap made before (two junction ends on one triangle of a thin face)
+      for (auto i : c.fan) overlaps = overlaps || capped[i];
+      if (overlaps) {
+        log("sweep: the junction along edge " + std::to_string(c.edge) + " ends on " + c.faces + " at " + fmt(X(c.V)) +
+            ", not one of its faces, next to the end cap of another junction on the same prisms: no cap");
+        continue;
+      }
+      if (double q = place_cap(c); q > 0) {
+        for (auto i : c.fan) capped[i] = 1;
+        kept.push_back(std::move(c));
+      } else {
+        log_cap(c, q, "");
+        m.x[c.Vi] = x0[0], m.y[c.Vi] = x0[1], m.z[c.Vi] = x0[2];
+      }
+    }
+    caps = std::move(kept);
+  }
+  std::vector<std::vector<std::uint32_t>> Pu;
+  for (std::size_t i = 0; i < P.size(); ++i)
+    if (!capped[i]) Pu.push_back(P[i]);
+  untangle(Pu);  // reads the prisms' nodes, moves shell nodes
+  std::vector<std::vector<std::uint32_t>> cap_tets, cap_pyramids;
+  for (auto& c : caps) {
+    double q = cap_quality(c);
+    std::string when = "";
+    if (!(q > 0)) q = place_cap(c), when = " (placed again after untangling)";
+    log_cap(c, q, when);
+    if (!(q > 0)) {
+      for (auto i : c.fan) capped[i] = 0;
+      continue;
+    }
+    cap_tets.insert(cap_tets.end(), c.tets.begin(), c.tets.end());
+    cap_pyramids.insert(cap_pyramids.end(), c.pyramids.begin(), c.pyramids.end());
+    ++R.end_caps;
+  }
   std::vector<std::size_t> bad_after;
   for (std::size_t i = 0; i < P.size(); ++i)
-    if (!prism_ok(P[i])) bad_after.push_back(i);
+    if (!capped[i] && !prism_ok(P[i])) bad_after.push_back(i);
   if (std::getenv("MESHFLOW_SWEEP_DEBUG")) {
     for (auto i : bad_after) {
       std::string l = "invalid after untangle: face " + std::to_string(pface[i]) + ":";
@@ -1707,15 +1943,45 @@ void Builder::volume() {
     }
     log("invalid prisms after untangle: " + std::to_string(bad_after.size()));
   }
-  if (!bad_after.empty()) throw StageError(untangle_failure(P, pface, bad_before, bad_after));
-  clear_crossings(P);
+  if (!bad_after.empty()) {
+    // the capped prisms are tets and pyramids now: counted apart
+    std::size_t n_capped = 0, n_capped_bad = 0;
+    for (std::size_t i = 0; i < P.size(); ++i)
+      if (capped[i]) ++n_capped, n_capped_bad += bad_before[i], bad_before[i] = 0;
+    std::string msg = untangle_failure(P, pface, bad_before, bad_after);
+    if (R.end_caps)
+      msg += ". Not counted: the " + std::to_string(n_capped) + " prisms (" + std::to_string(n_capped_bad) +
+             " inverted before untangling) at the " + std::to_string(R.end_caps) +
+             " junction ends on a third face that end caps replace (valid tets and pyramids)";
+    throw StageError(msg);
+  }
+  {
+    // the outer surface without the capped prisms (their tets and pyramids are not moved)
+    std::vector<std::vector<std::uint32_t>> live;
+    std::set<std::uint32_t> frozen;
+    for (std::size_t i = 0; i < P.size(); ++i)
+      if (!capped[i]) live.push_back(P[i]);
+    for (auto& c : caps) {
+      for (auto& t : c.tets) frozen.insert(t.begin(), t.end());
+      for (auto& y : c.pyramids) frozen.insert(y.begin(), y.end());
+    }
+    clear_crossings(live, frozen);
+  }
   auto& prisms = m.block(model::Shape::Prism, 1, 3, 1);
   for (std::size_t i = 0; i < P.size(); ++i) {
+    if (capped[i]) continue;
     valid_or_flip(model::Shape::Prism, P[i], {0, 2, 1, 3, 5, 4}, "prism on wall face " + std::to_string(pface[i]));
     prisms.add(P[i].data());
     ++R.prisms;
   }
   if (prisms.size() == 0) m.blocks.pop_back();
+  if (!cap_tets.empty()) {  // oriented by find_caps
+    auto& tb = m.block(model::Shape::Tet, 1, 3, 1);
+    for (auto& t : cap_tets) tb.add(t.data());
+    auto& pb = m.block(model::Shape::Pyramid, 1, 3, 1);
+    for (auto& q : cap_pyramids) pb.add(q.data());
+    R.cap_tets += cap_tets.size(), R.cap_pyramids += cap_pyramids.size();
+  }
   for (auto& j : J) {
     std::size_t n = j.p0.size();
     for (std::size_t k = 0; k + 1 < n; ++k) {
@@ -1741,11 +2007,12 @@ void Builder::volume() {
 // The message when untangling leaves inverted prisms. Untangling smooths directions over the
 // neighbours of inverted prisms and thins the layer where they stay inverted, so the prisms
 // still inverted at its end may be valid ones it moved (DLR-F6 at junction_angle_deg 170: the
-// nacelle's face 0, thinned to 3e-4 mm, while the 13 inverted before were on other faces). The
-// message names the prisms inverted before untangling first (by face), and the first of them,
-// and says when one of its wall nodes is a strip corner (PA or PB) of the end cross-section of a
-// junction that ends on that prism's face without it being one of the junction's faces (that
-// node is swept to the junction's outer corner PC, across the face: sweep.hpp, KNOWN LIMITATION).
+// nacelle's face 0, while those inverted before were on other faces). The message names the
+// prisms inverted before untangling first (by face; the caller leaves out those replaced by end
+// caps), and the first of them, and says when one of its wall nodes is a strip corner (PA or PB)
+// of the end cross-section of a junction that ends on that prism's face without it being one of
+// the junction's faces (that node is swept to the junction's outer corner PC, across the face:
+// sweep.hpp, "Junction ends on a third face", where no end cap could replace those prisms).
 std::string Builder::untangle_failure(const std::vector<std::vector<std::uint32_t>>& P, const std::vector<int>& pface,
                                       const std::vector<char>& bad_before, const std::vector<std::size_t>& bad_after) {
   auto by_face = [&](const std::vector<std::size_t>& list) {
@@ -1777,14 +2044,18 @@ std::string Builder::untangle_failure(const std::vector<std::vector<std::uint32_
   std::map<std::uint32_t, std::vector<const Junction*>> corner_of;
   for (auto& j : J)
     for (std::size_t k : {std::size_t(0), j.pa.size() - 1}) corner_of[j.pa[k]].push_back(&j), corner_of[j.pb[k]].push_back(&j);
-  // the first wall node of prism i that is a strip corner of a junction ending on the prism's face
-  // without it being one of the junction's faces, and that junction (null if none)
+  // the first wall node of prism i that is a strip corner of junction ends on the prism's face
+  // without the face being one of those junctions' faces, and the first such junction (null if
+  // none). A corner shared by the ends of two junctions one of which has the face (DLR-F6's
+  // junctions along edges 159 and 182, faces 35 | 46 and 46 | 53, at their common vertex) is not
+  // foreign to it.
   auto foreign_end = [&](std::size_t i) -> std::pair<std::uint32_t, const Junction*> {
     for (int c = 0; c < 3; ++c) {
       auto it = corner_of.find(P[i][c]);
-      if (it != corner_of.end())
-        for (auto* j : it->second)
-          if (pface[i] != j->A && pface[i] != j->B) return {P[i][c], j};
+      if (it == corner_of.end()) continue;
+      bool own = false;
+      for (auto* j : it->second) own = own || pface[i] == j->A || pface[i] == j->B;
+      if (!own) return {P[i][c], it->second.front()};
     }
     return {0, nullptr};
   };
@@ -1799,7 +2070,7 @@ std::string Builder::untangle_failure(const std::vector<std::vector<std::uint32_
     hint = ": its wall node at " + fmt(X(w)) + " is a strip corner of the end cross-section of the junction along edge " +
            std::to_string(j->edge) + " (faces " + std::to_string(j->A) + " and " + std::to_string(j->B) +
            "), swept to that junction's outer corner, because the junction ends on face " + std::to_string(F) +
-           ", which is not one of its faces (sweep.hpp, KNOWN LIMITATION). Make the edges of face " + std::to_string(F) +
+           ", which is not one of its faces and no end cap could replace the prisms there (sweep.hpp, \"Junction ends on a third face\"). Make the edges of face " + std::to_string(F) +
            " at that end junctions too (shell.junction_angle_deg, shell.junction_with), or use shell.topology O";
   else
     hint = " (the shell is too close to the wall or folds there); reduce shell.thickness or shell.max_gradient, or refine the "
@@ -1930,6 +2201,7 @@ nlohmann::json Report::to_json() const {
           {"periodic_faces_copied", periodic_faces_copied}, {"periodic_pairs", periodic_pairs},
           {"periodic_max_mismatch", periodic_max_mismatch},
           {"periodic_max_mismatch_rel", periodic_model_size > 0 ? periodic_max_mismatch / periodic_model_size : 0.0},
+          {"end_caps", end_caps}, {"cap_tets", cap_tets}, {"cap_pyramids", cap_pyramids},
           {"total_seconds", total_seconds}};
 }
 

@@ -52,35 +52,49 @@
 // block and B of the next at V (DLR-F6's fuselage where the wing root loop passes from one wing
 // face to the next) gets one node for both roles, and blocks whose end cross-sections share their
 // two strip corners share one PC (their end faces coincide).
-// KNOWN LIMITATION (DLR-F6's pylon on the nacelle, tests/sweep/junction_width_test.cpp's open U):
-// a junction ending at a vertex V whose other faces include a third wall face F that is neither
-// A nor B of a block there (the pylon's leading-edge face, whose edges with the nacelle are not
-// junctions at junction_angle_deg 150; the common flush side of the U). PA and PB then lie on F's
-// boundary, V keeps its own vertex image, and the hex's end face (V, PA, PC, PB) is not a face of
-// F's prisms: it bounds a thin pocket against their side faces (V, PA | PC, img V) and
-// (V, PB | PC, img V). tet puts a pyramid on that exposed quad, whose apex pokes through those
-// prisms (TetGen: intersecting facets, then signal 11; tet now refuses it first, see below). Where F is small (DLR-F6's pylon nose,
-// 11 mm) one of its triangles has both PA and PB, whose prism collapses (both swept to PC): sweep
-// refuses that, naming the junction and F, before untangling. A fix needs F's layer to close onto the end face (F's corner triangle (V, PA, PB) swept
-// to the end face, or the end cross-section laid on F); junction_angle_deg 170 makes DLR-F6's
-// pylon-nose edges junctions, which closes that loop but not the others.
-// Why the pocket cannot simply be filled (measured on the open U, where F is flush and convex
-// with A and B): F's prism over V-PA has the side face q1 = (V, PA, PC, img V) and the hex end
-// face is q3 = (V, PA, PC, PB); the pocket between them and q2 = (V, PB, PC, img V) is a real
-// volume (a bipyramid with apexes V and PC, equator PA, PB, img V: its three tets have one sign),
-// but q1 and q3 share the two consecutive edges V-PA and PA-PC, so as bilinear faces they are
-// tangent at PA (likewise q1, q2 at img V and q2, q3 at PB): any linear element on q1 and any on
-// q3 need their interiors on opposite sides of one plane there. Three pyramids on q1, q2, q3
-// with a common apex inside the pocket were tried: no apex (centroids, axis midpoint, blends)
-// gives even one valid set. So the fix is not a filler but a different block structure at V: F's
-// layer edge at V and the strip corners must not form two quads with two common edges, e.g. the
-// convex edges A|F and B|F next to V without averaged normals (a fan, or their own end block),
-// which is shell's decision (its direction fields and blocks) before sweep can mesh it. Until
-// then tet refuses the U's near field by name: the edge between the tops of F's two prisms at V
-// is used by four faces of its outer surface (the two prism tops and the pyramids on q1, q2).
-// On DLR-F6 at junction_angle_deg 170, 10 of the 13 prisms inverted before untangling have a
-// strip corner of such a junction (the first: the pylon's junction with the wing's lower surface
-// ends on the wing's blunt trailing-edge face); the untangling error counts them.
+// Junction ends on a third face (the former KNOWN LIMITATION; what is left of it: "Still open"
+// below; tests/sweep/junction_width_test.cpp's open U): a junction ending
+// at a vertex V whose other wall faces include a face F that is neither A nor B of a block there
+// (the U's common flush side). PA and PB then lie on F's boundary (its edges with A and B, cut
+// there) and are swept to PC, V keeps its own vertex image V', and the hex's end face
+// q3 = (V, PA, PC, PB) bounds a pocket against the side faces q1 = (V, PA, PC, V') and
+// q2 = (V, PB, PC, V') of F's prisms at V. No linear element fills it as it stands: q1 and q3
+// share the two consecutive edges V-PA and PA-PC, so as bilinear faces they are tangent at PA
+// (likewise q1, q2 at V' and q2, q3 at PB), and tet's pyramids on q1, q2, q3 poke through the
+// prisms (TetGen: intersecting facets, then signal 11; tet refuses the pinched outer surface
+// first). Sweep's end cap (sweep.cpp, find_caps) changes the elements at V instead: when the wall
+// triangles at V form one fan from V-PA to V-PB (all on faces other than A and B) and no other
+// block shares q3, each fan prism (V, a, b | V', a', b') becomes the tet (V, a, b, V') and the
+// pyramid (a, a', b', b; V'), which splits the fan's side faces along a-V' (q1 along PA-V', q2
+// along PB-V'), and the pocket is the pyramid (q3; V'). The outer surface there is the prism tops
+// (V', a', b') again, a manifold. V' belongs to these elements only and is placed by a pattern
+// search (from its shell position and from V + the fan's mean layer vector) maximising their
+// smallest scaled Jacobian; caps are decided before untangling (which would thin V' with the
+// prisms it untangles) and re-placed after it if the rim's shell nodes moved. A cap that stays
+// invalid is refused (logged; the prisms stay and tet names the pocket); so is a cap whose fan
+// overlaps one made before (two junction ends on one triangle of a thin face). The open U: 2 caps
+// (9 tets, 11 pyramids), then tet fills the far field, invalid 0, non-conforming 0.
+// Still open:
+//   - split does not split the caps (their pyramids' bases are side faces of layered prisms and
+//     q3 is split in two directions): the layered mesh is non-conforming there and split refuses
+//     it (the open U passes curve and optimise, then stops at split);
+//   - a strip corner whose side edge leaves V at an obtuse angle to the strip (DLR-F6's pylon
+//     nose on the nacelle at junction_angle_deg 150: the pylon-nacelle curve goes on from the
+//     junction edge onto F, the pylon's 11 mm leading-edge face) would be cut at V itself (2e-4
+//     mm away), and F's triangle (V, PA, PB) would collapse (both swept to PC): beside a third
+//     face such a corner is a face node on its face (junction_ends), V a node of that face's
+//     mesh, and the fan at V includes that face's triangles. There the cap stays just invalid
+//     (min scaled Jacobian -0.004: three of its pyramids' twisted bases meet at PC; moving PC
+//     too did not help) and is refused;
+//   - DLR-F6: the ends of the pylon junctions along edges 40 and 158 on the wing's 0.6 mm blunt
+//     trailing-edge face 9 (0.6 mm apart, their fans share a triangle, whose sliver prisms'
+//     outer faces are twisted) get no valid cap; both ends of edge 50 are capped at
+//     junction_angle_deg 170. Sweep stops after untangling, 6 prisms inverted (150; 5 at 170),
+//     on the nacelle's face 0 (valid before untangling moved them) and on face 53, B of the
+//     0.67 mm junction along edge 182 (not a third face): at its far end the strip corner PB,
+//     2.3 mm from the edge, is a face node lying on face 53's boundary edge 160 (the strip is
+//     wider than the face there; shell's face-width limit skips exits through an edge sharing a
+//     vertex with the junction edge), so face 53's mesh has a triangle of three collinear nodes.
 // Wall nodes are swept to their shell images by the shell's fields (vertex value, edge field,
 // face grid: the shell's RULE FOR SWEEP); nodes of the strip boundaries map to PC.
 // Wall|other edges that are not junctions (topology O, or tags not in junction_with): the
@@ -130,6 +144,7 @@ struct Options {
 struct Report {
   std::size_t wall_triangles = 0, strip_quads = 0, slide_quads = 0, boundary_triangles = 0;
   std::size_t prisms = 0, hexes = 0, junction_blocks = 0, edges_cut = 0;
+  std::size_t end_caps = 0, cap_tets = 0, cap_pyramids = 0;  // junction ends on a third face (see above)
   std::size_t thinned = 0;  // node moves that thinned the layer to untangle prisms
   // the near field's outer surface (sweep.cpp, clear_crossings): crossing face pairs found first
   // and left at the end, layer nodes thinned to clear them and the smallest height scale used

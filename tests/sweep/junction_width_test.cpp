@@ -101,22 +101,30 @@ TEST_CASE("junction along a ledge narrower than its strip (closed ring): thickne
 }
 
 // The open U: the junctions end where the upper block is flush with the lower one, at a third
-// face (the common side y = 4), which is not part of the junction. sweep meshes it. Its outer
-// surface is not a manifold there: the hex's end face and the side faces of the third face's two
-// prisms at the junction's end vertex bound a pocket, and the edge between those prisms' tops is
-// used by four faces (sweep.hpp, KNOWN LIMITATION: no linear element can fill the pocket). tet
-// refuses that before TetGen, naming the edge and the limitation (TetGen stopped with signal 11),
-// at both ends of the U. When the block structure there is fixed, require tet to pass here.
-TEST_CASE("junction along a ledge narrower than its strip (open U, junction ends at a third face): sweep gives a valid near field, tet names the pinched outer surface") {
-  fs::path out = run_ledge("jw-u", true, "sweep");
+// face (the common side y = 4), which is not part of the junction. The hex's end face and the side
+// faces of the third face's two prisms at the junction's end vertex used to bound a pocket (the
+// edge between those prisms' tops used by four faces of the outer surface; tet refused it, TetGen
+// had stopped with signal 11). sweep now caps both ends (sweep.hpp, "Junction ends on a third
+// face"): the third face's prisms at the vertex become tets and pyramids with apex the vertex's
+// shell node and the pocket a pyramid on the end face, so tet fills the far field. Without the
+// caps (end_caps 0) tet fails here again.
+TEST_CASE("junction along a ledge narrower than its strip (open U, junction ends at a third face): sweep caps both junction ends, tet fills the far field, valid and conforming") {
+  mftest::ShellResult r;
+  fs::path out = run_ledge("jw-u", true, "tet", &r);
+  INFO(r.out);
+  REQUIRE(r.code == 0);
+  CHECK(r.out.find("is used by 4 faces") == std::string::npos);
   check_shell(out);
   check_mesh(out / "mesh.msh");
-  mftest::ShellResult r;
-  run_ledge("jw-u-tet", true, "tet", &r);
-  INFO(r.out);
-  CHECK(r.code == 1);
-  CHECK(r.out.find("tet: the far-field boundary is not a manifold: 2 edge(s) are used by more than two of its faces") !=
-        std::string::npos);
-  CHECK(r.out.find("is used by 4 faces") != std::string::npos);
-  CHECK(r.out.find("signal") == std::string::npos);
+  auto sw = stage_stats(out, "sweep");
+  MESSAGE("sweep: " << sw.at("sweep").dump());
+  CHECK(sw.at("sweep").at("end_caps").get<int>() == 2);
+  // per end: one tet per prism of the fan at the vertex, one pyramid each plus the pocket's
+  auto caps = sw.at("sweep");
+  CHECK(caps.at("cap_pyramids").get<int>() == caps.at("cap_tets").get<int>() + 2);
+  auto m = meshflow::io::read_mesh(out / "mesh.msh");
+  auto st = meshflow::model::mesh_stats(m);
+  CHECK(st.at("elements").at("hex").get<long>() > 0);
+  CHECK(st.at("elements").at("pyramid").get<long>() == caps.at("cap_pyramids").get<long>());  // tet added none: no exposed quad
+  CHECK(st.at("elements").at("tet").get<long>() > 1000);
 }
