@@ -800,11 +800,16 @@ Result split_mesh(const Mesh& in, const Options& opt, int threads) {
       if (out.node_entity_dim[id] <= 2 && std::isnan(out.node_u[id])) ++st.nodes_without_params;
 
   // periodic links: new nodes of split slave faces -> the same keys on the master side
+  // A face's own link lists the nodes classified on the face; the vertices of a split face on
+  // the face's boundary (a layer edge on a CAD edge, a corner on a CAD vertex) have their
+  // masters in the links of those edges and vertices (Rotor 67: the periodic side's corner at
+  // the inlet and the hub), so the masters are looked up in every link.
+  std::unordered_map<std::uint32_t, std::uint32_t> master;
+  for (const auto& link : in.periodic)
+    for (auto [s, m] : link.nodes) master.emplace(s, m);
   std::vector<model::PeriodicLink> periodic = in.periodic;
   for (auto& link : periodic) {
     if (link.dim != 2) continue;
-    std::unordered_map<std::uint32_t, std::uint32_t> master;
-    for (auto [s, m] : link.nodes) master.emplace(s, m);
     std::vector<std::pair<std::uint32_t, std::uint32_t>> add;
     for (std::size_t i = 0; i < macros.size(); ++i) {
       const Pattern& pt = patterns[macros[i].pattern];

@@ -437,7 +437,8 @@ TEST_CASE("refusals: no wall, a prism without a wall face, order mismatch, oppos
 }
 
 TEST_CASE("periodic: a channel of prisms on a flat wall, periodic in y: the new nodes of the split periodic faces are linked to their masters") {
-  for (int P : {1, 3}) {
+  for (int P : {1, 3})
+  for (bool edge_links : {false, true}) {
     const int Nx = 4, Ny = 3;
     const double T = 0.2;
     Mesh m;
@@ -479,9 +480,18 @@ TEST_CASE("periodic: a channel of prisms on a flat wall, periodic in y: the new 
       }
     meshflow::model::PeriodicLink link;
     link.dim = 2, link.tag = 31, link.master_tag = 30;
+    // edge_links: as sweep writes it, the face's link has only the nodes inside the face and the
+    // nodes on its boundary (the wall line k = 0, the ends i = 0 and i = Nx P) are in a link of
+    // their own (a CAD edge's), which split must consult for the split faces' corner masters
+    meshflow::model::PeriodicLink elink;
+    elink.dim = 1, elink.tag = 41, elink.master_tag = 40;
     for (int i = 0; i <= Nx * P; ++i)
-      for (int k = 0; k <= P; ++k) link.nodes.emplace_back(node(i, Ny * P, k), node(i, 0, k));
+      for (int k = 0; k <= P; ++k) {
+        bool boundary = k == 0 || i == 0 || i == Nx * P;
+        (edge_links && boundary ? elink : link).nodes.emplace_back(node(i, Ny * P, k), node(i, 0, k));
+      }
     m.periodic.push_back(link);
+    if (edge_links) m.add_entity(1, 40), m.add_entity(1, 41), m.periodic.push_back(elink);
     m.check();
     REQUIRE(meshflow::model::mesh_stats(m, 1)["invalid"] == 0);
     Options o;
@@ -489,9 +499,11 @@ TEST_CASE("periodic: a channel of prisms on a flat wall, periodic in y: the new 
     o.ratio = 2;
     auto r = split_mesh(m, o, 2);
     const Mesh& out = r.mesh;
-    REQUIRE(out.periodic.size() == 1);
-    const auto& pl = out.periodic[0].nodes;
+    REQUIRE(out.periodic.size() == (edge_links ? 2u : 1u));
+    std::vector<std::pair<std::uint32_t, std::uint32_t>> pl;
+    for (auto& L : out.periodic) pl.insert(pl.end(), L.nodes.begin(), L.nodes.end());
     CAPTURE(P);
+    CAPTURE(edge_links);
     CHECK(pl.size() == std::size_t(Nx * P + 1) * (5 * P + 1));
     CHECK(r.stats.periodic_pairs_added == std::size_t(Nx * P + 1) * (5 * P - 1));
     double worst = 0;
