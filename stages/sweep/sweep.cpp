@@ -1195,6 +1195,13 @@ void Builder::untangle(std::vector<std::vector<std::uint32_t>>& P) {
       for (int j = 0; j < 3; ++j)
         if (j != i) nb[p[i]].insert(p[j]);
     }
+  std::map<std::uint32_t, std::vector<std::size_t>> prisms_of_img;  // shell node -> prisms
+  std::map<std::uint32_t, std::uint32_t> wall_of;                    // shell node -> its wall node
+  for (std::size_t k = 0; k < P.size(); ++k)
+    for (int c = 0; c < 3; ++c) prisms_of_img[P[k][c + 3]].push_back(k), wall_of[P[k][c + 3]] = P[k][c];
+  auto either = [&](const std::vector<std::uint32_t>& p) {
+    return valid(p) || valid({p[0], p[2], p[1], p[3], p[5], p[4]});
+  };
   std::set<std::uint32_t> fixed_img;
   auto movable = [&](std::uint32_t w) {
     std::uint32_t i = img.at(w);
@@ -1240,7 +1247,31 @@ void Builder::untangle(std::vector<std::vector<std::uint32_t>>& P) {
         if (pass >= 20 && bad.count(w)) len = std::min(len, 0.8 * norm(sub(X(img.at(w)), X(w)))), ++R.thinned;
         upd.push_back({img.at(w), add(X(w), mul(d, len / norm(d)))});
       }
+      // moves of neighbours (nodes that are not themselves in an inverted prism) must not invert
+      // a prism that was valid: those are undone (DLR-F6's nacelle: valid prisms next to the
+      // tangle were smoothed into it and then thinned to 3e-4 mm)
+      std::set<std::size_t> touched;
+      std::map<std::uint32_t, V3> before;
+      for (auto& [i, x] : upd) {
+        before[i] = X(i);
+        for (auto k : prisms_of_img[i]) touched.insert(k);
+      }
+      std::map<std::size_t, bool> was_ok;
+      for (auto k : touched) was_ok[k] = either(P[k]);
       for (auto& [i, x] : upd) m.x[i] = x[0], m.y[i] = x[1], m.z[i] = x[2];
+      for (bool again = true; again;) {
+        again = false;
+        for (auto k : touched)
+          if (was_ok[k] && !either(P[k]))
+            for (int c = 3; c < 6; ++c) {
+              auto i = P[k][c];
+              auto b = before.find(i);
+              if (b == before.end() || bad.count(wall_of.at(i))) continue;
+              m.x[i] = b->second[0], m.y[i] = b->second[1], m.z[i] = b->second[2];
+              before.erase(b);
+              again = true;
+            }
+      }
     }
     return false;
   };

@@ -89,14 +89,18 @@
 //   - DLR-F6: the ends of the pylon junctions along edges 40 and 158 on the wing's 0.6 mm blunt
 //     trailing-edge face 9 (0.6 mm apart, their fans share a triangle, whose sliver prisms'
 //     outer faces are twisted) get no valid cap; both ends of edge 50 are capped at
-//     junction_angle_deg 170. Sweep stops after untangling, 6 prisms inverted (150; 5 at 170),
-//     on the nacelle's face 0 (valid before untangling moved them) and on face 53, B of the
+//     junction_angle_deg 170. Sweep stops after untangling, 4 prisms inverted (150; 3 at 170;
+//     6 and 5 before untangling stopped smoothing valid neighbours into the tangle), on the
+//     nacelle's face 0 and on face 53, B of the
 //     0.67 mm junction along edge 182 (not a third face): at its far end the strip corner PB,
 //     2.3 mm from the edge, is a face node lying on face 53's boundary edge 160 (the strip is
 //     wider than the face there; shell's face-width limit skips exits through an edge sharing a
 //     vertex with the junction edge), so face 53's mesh has a triangle of three collinear nodes.
 // Wall nodes are swept to their shell images by the shell's fields (vertex value, edge field,
 // face grid: the shell's RULE FOR SWEEP); nodes of the strip boundaries map to PC.
+// Untangling (sweep.cpp, untangle): inverted prisms' layer directions are smoothed with their
+// neighbours' (after 20 passes the layer is also thinned there); a neighbour's move that would
+// invert a prism valid before that pass is undone.
 // Wall|other edges that are not junctions (topology O, or tags not in junction_with): the
 // prism's side quad lies on the other face, whose triangulation starts at the images.
 //

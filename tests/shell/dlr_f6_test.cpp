@@ -48,8 +48,9 @@ TEST_CASE("wing_body.yaml (DLR-F6): medial, shell and balance run, shell crossin
   // every stage up to balance ran; sweep meshes every face and stops after untangling the layer
   // (no longer at the collapsed prism on face 6: the pylon-nose corner of the junction along edge
   // 7 is a face node beside the obtuse side edge). Ratchet: at most kMaxInverted prisms stay
-  // inverted after untangling.
-  constexpr long kMaxInverted = 6;
+  // inverted after untangling (6 until untangling stopped smoothing valid neighbours into the
+  // tangle; 4 since: 2 on the nacelle, face 0, and 2 on the pylon, face 53).
+  constexpr long kMaxInverted = 4;
   auto inverted_after = [](const std::string& out) {
     std::smatch mt;
     REQUIRE(std::regex_search(out, mt, std::regex("sweep: (\\d+) of (\\d+) prisms stay inverted after untangling the layer")));
@@ -81,7 +82,7 @@ TEST_CASE("wing_body.yaml (DLR-F6): medial, shell and balance run, shell crossin
   // 53; now faces 0 and 53), at least kMinCaps170 caps. The caps at the ends of edges 40 and 158
   // on face 9 (two junction ends 0.6 mm apart on the 0.6 mm trailing-edge face, their fans sharing
   // a triangle) are refused: no position of the vertex's shell node makes them valid.
-  constexpr long kMaxInverted170 = 5, kMinCaps170 = 2;
+  constexpr long kMaxInverted170 = 3, kMinCaps170 = 2;  // 5 before the valid-neighbour guard
   auto r170 = mftest::sh(std::string(MESHFLOW_EXE) + " run " + (dir / "wing_body_sweep.yaml").string() +
                          " --set shell.junction_angle_deg=170 --cache " + (dir / "cache").string() + " --out " +
                          (dir / "out170").string() + " 2>&1");
