@@ -6,6 +6,7 @@
 #include <nlohmann/json.hpp>
 
 #include <sys/wait.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <chrono>
@@ -63,6 +64,14 @@ inline Run run_meshflow(const std::filesystem::path& dir, const std::string& wor
   ss << lg.rdbuf();
   r.log = ss.str();
   return r;
+}
+
+// An empty scratch folder for one benchmark case: $TMPDIR/mf-<name>-<pid>, removed and made again.
+inline std::filesystem::path fresh_dir(const std::string& name) {
+  auto dir = std::filesystem::temp_directory_path() / ("mf-" + name + "-" + std::to_string(getpid()));
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  return dir;
 }
 
 // The entry of stage `name` in a report.json (null if absent).

@@ -36,9 +36,7 @@ int main() {
   bool all_ok = true;
   for (auto& w : ws) {
     std::cerr << "linear_bench: " << w.file << "\n";
-    fs::path dir = fs::temp_directory_path() / ("mf-linear-bench-" + std::to_string(getpid()));
-    fs::remove_all(dir);
-    fs::create_directories(dir);
+    fs::path dir = fresh_dir("linear-bench");
     Run r = run_meshflow(dir, src + "/" + w.file, w.extra);
     md << "### " << w.title << "\n\n";
     if (r.report.is_null()) {

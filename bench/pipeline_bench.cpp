@@ -128,9 +128,7 @@ int main() {
   bool all_ok = true;
   for (auto& w : ws) {
     std::cerr << "pipeline_bench: " << w.file << "\n";
-    fs::path dir = fs::temp_directory_path() / ("mf-pipeline-bench-" + std::to_string(getpid()));
-    fs::remove_all(dir);
-    fs::create_directories(dir);
+    fs::path dir = meshflow::bench::fresh_dir("pipeline-bench");
     std::string wf = src + "/" + w.file;
     json& wd = data["workflows"][w.file];
     wd["title"] = w.title;
