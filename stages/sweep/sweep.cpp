@@ -270,6 +270,29 @@ class Builder {
   std::string untangle_failure(const std::vector<std::vector<std::uint32_t>>& P, const std::vector<int>& pface,
                                const std::vector<char>& bad_before, const std::vector<std::size_t>& bad_after);
   void untangle(std::vector<std::vector<std::uint32_t>>& prisms);
+  // linear validity of a prism or hex (model::element_quality), as given or in either
+  // orientation (flip_of: the node order of the other orientation, which volume() writes)
+  static const std::vector<int>& flip_of(model::Shape shape) {
+    static const std::vector<int> prism{0, 2, 1, 3, 5, 4}, hex{0, 3, 2, 1, 4, 7, 6, 5};
+    return shape == model::Shape::Hex ? hex : prism;
+  }
+  bool linear_valid(model::Shape shape, const std::vector<std::uint32_t>& nodes) const {
+    std::vector<double> X3;
+    X3.reserve(3 * nodes.size());
+    for (auto n : nodes) X3.insert(X3.end(), {m.x[n], m.y[n], m.z[n]});
+    return model::element_quality(shape, 1, X3.data()).valid;
+  }
+  bool valid_either(model::Shape shape, const std::vector<std::uint32_t>& nodes) const {
+    if (linear_valid(shape, nodes)) return true;
+    const auto& f = flip_of(shape);
+    std::vector<std::uint32_t> g(nodes.size());
+    for (std::size_t i = 0; i < nodes.size(); ++i) g[i] = nodes[f[i]];
+    return linear_valid(shape, g);
+  }
+  // the hex of junction j between its division nodes k and k + 1
+  static std::vector<std::uint32_t> junction_hex(const Junction& j, std::size_t k) {
+    return {j.p0[k], j.p0[k + 1], j.pa[k + 1], j.pa[k], j.pb[k], j.pb[k + 1], j.pc[k + 1], j.pc[k]};
+  }
   void clear_crossings(const std::vector<std::vector<std::uint32_t>>& prisms, const std::set<std::uint32_t>& frozen);
   // junction ends on a third face (find_caps, place_cap: see their definitions)
   struct Cap {
@@ -1182,11 +1205,6 @@ void Builder::mesh_face(int f, int copy_from) {
 // at the nodes of inverted prisms). Images sliding on other faces never move; junction corners
 // only in a second round when the first fails (see below).
 void Builder::untangle(std::vector<std::vector<std::uint32_t>>& P) {
-  auto valid = [&](const std::vector<std::uint32_t>& p) {
-    double X3[18];
-    for (int i = 0; i < 6; ++i) X3[3 * i] = m.x[p[i]], X3[3 * i + 1] = m.y[p[i]], X3[3 * i + 2] = m.z[p[i]];
-    return model::element_quality(model::Shape::Prism, 1, X3).valid;
-  };
   std::map<std::uint32_t, std::set<std::uint32_t>> nb;
   std::map<std::uint32_t, std::uint32_t> img;
   for (auto& p : P)
@@ -1199,9 +1217,7 @@ void Builder::untangle(std::vector<std::vector<std::uint32_t>>& P) {
   std::map<std::uint32_t, std::uint32_t> wall_of;                    // shell node -> its wall node
   for (std::size_t k = 0; k < P.size(); ++k)
     for (int c = 0; c < 3; ++c) prisms_of_img[P[k][c + 3]].push_back(k), wall_of[P[k][c + 3]] = P[k][c];
-  auto either = [&](const std::vector<std::uint32_t>& p) {
-    return valid(p) || valid({p[0], p[2], p[1], p[3], p[5], p[4]});
-  };
+  auto either = [&](const std::vector<std::uint32_t>& p) { return valid_either(model::Shape::Prism, p); };
   std::set<std::uint32_t> fixed_img;
   auto movable = [&](std::uint32_t w) {
     std::uint32_t i = img.at(w);
@@ -1212,11 +1228,8 @@ void Builder::untangle(std::vector<std::vector<std::uint32_t>>& P) {
     for (int pass = 0; pass < 60; ++pass) {
       std::set<std::uint32_t> bad;
       for (auto& p : P)
-        if (!valid(p)) {
-          std::vector<std::uint32_t> q{p[0], p[2], p[1], p[3], p[5], p[4]};
-          if (valid(q)) continue;  // the other orientation is valid: flipped later
+        if (!either(p))  // valid in the other orientation: flipped later
           for (int i = 0; i < 3; ++i) bad.insert(p[i]);
-        }
       if (bad.empty()) {
         if (pass > 0)
           log("sweep: layer directions smoothed in " + std::to_string(pass) + " passes to untangle prisms" + what +
@@ -1312,8 +1325,7 @@ void Builder::clear_crossings(const std::vector<std::vector<std::uint32_t>>& P, 
   constexpr int kRounds = 40;
   std::vector<std::vector<std::uint32_t>> H;
   for (auto& j : J)
-    for (std::size_t k = 0; k + 1 < j.p0.size(); ++k)
-      H.push_back({j.p0[k], j.p0[k + 1], j.pa[k + 1], j.pa[k], j.pb[k], j.pb[k + 1], j.pc[k + 1], j.pc[k]});
+    for (std::size_t k = 0; k + 1 < j.p0.size(); ++k) H.push_back(junction_hex(j, k));
   // faces of the elements (Gmsh order), counted by their sorted nodes
   static const std::vector<std::vector<int>> prism_faces{{0, 1, 2}, {3, 4, 5}, {0, 1, 4, 3}, {1, 2, 5, 4}, {2, 0, 3, 5}};
   static const std::vector<std::vector<int>> hex_faces{{0, 1, 2, 3}, {4, 5, 6, 7}, {0, 1, 5, 4},
@@ -1377,16 +1389,7 @@ void Builder::clear_crossings(const std::vector<std::vector<std::uint32_t>>& P, 
   for (std::uint32_t i = 0; i < H.size(); ++i)
     for (auto n : H[i]) if (base.count(n)) elems[n].push_back({1, i});
   auto valid = [&](char kind, std::uint32_t i) {
-    const auto& e = kind ? H[i] : P[i];
-    static const int pf[6] = {0, 2, 1, 3, 5, 4}, hf[8] = {0, 3, 2, 1, 4, 7, 6, 5};
-    std::vector<double> A, B;
-    for (std::size_t c = 0; c < e.size(); ++c) {
-      auto n = e[c], g = e[kind ? hf[c] : pf[c]];
-      A.insert(A.end(), {m.x[n], m.y[n], m.z[n]});
-      B.insert(B.end(), {m.x[g], m.y[g], m.z[g]});
-    }
-    auto sh = kind ? model::Shape::Hex : model::Shape::Prism;
-    return model::element_quality(sh, 1, A.data()).valid || model::element_quality(sh, 1, B.data()).valid;
+    return kind ? valid_either(model::Shape::Hex, H[i]) : valid_either(model::Shape::Prism, P[i]);
   };
   std::map<std::uint32_t, V3> x0;
   std::map<std::uint32_t, double> scale;
@@ -1821,17 +1824,12 @@ void Builder::periodic_links() {
 }
 
 void Builder::volume() {
-  auto valid_or_flip = [&](model::Shape shape, std::vector<std::uint32_t>& nodes, const std::vector<int>& flip,
-                           const std::string& what) {
-    auto check = [&](const std::vector<std::uint32_t>& nd) {
-      std::vector<double> X3;
-      for (auto n : nd) X3.push_back(m.x[n]), X3.push_back(m.y[n]), X3.push_back(m.z[n]);
-      return model::element_quality(shape, 1, X3.data()).valid;
-    };
-    if (check(nodes)) return true;
+  auto valid_or_flip = [&](model::Shape shape, std::vector<std::uint32_t>& nodes, const std::string& what) {
+    if (linear_valid(shape, nodes)) return true;
+    const auto& flip = flip_of(shape);
     std::vector<std::uint32_t> g(nodes.size());
     for (std::size_t i = 0; i < nodes.size(); ++i) g[i] = nodes[flip[i]];
-    if (check(g)) {
+    if (linear_valid(shape, g)) {
       nodes = g;
       return true;
     }
@@ -1901,15 +1899,7 @@ void Builder::volume() {
                      "neighbour to shell.junction_with) or use shell.topology O");
   }
   // valid in either orientation (valid_or_flip below flips the others)
-  auto prism_ok = [&](const std::vector<std::uint32_t>& p) {
-    double X3[18], Y3[18];
-    const int q[6] = {0, 2, 1, 3, 5, 4};
-    for (int c = 0; c < 6; ++c) {
-      X3[3 * c] = m.x[p[c]], X3[3 * c + 1] = m.y[p[c]], X3[3 * c + 2] = m.z[p[c]];
-      Y3[3 * c] = m.x[p[q[c]]], Y3[3 * c + 1] = m.y[p[q[c]]], Y3[3 * c + 2] = m.z[p[q[c]]];
-    }
-    return model::element_quality(model::Shape::Prism, 1, X3).valid || model::element_quality(model::Shape::Prism, 1, Y3).valid;
-  };
+  auto prism_ok = [&](const std::vector<std::uint32_t>& p) { return valid_either(model::Shape::Prism, p); };
   std::vector<char> bad_before(P.size(), 0);
   for (std::size_t i = 0; i < P.size(); ++i) bad_before[i] = !prism_ok(P[i]);
   // Junction ends on a third face: the prisms there become the end cap's tets and pyramids, decided
@@ -2001,7 +1991,7 @@ void Builder::volume() {
   auto& prisms = m.block(model::Shape::Prism, 1, 3, 1);
   for (std::size_t i = 0; i < P.size(); ++i) {
     if (capped[i]) continue;
-    valid_or_flip(model::Shape::Prism, P[i], {0, 2, 1, 3, 5, 4}, "prism on wall face " + std::to_string(pface[i]));
+    valid_or_flip(model::Shape::Prism, P[i], "prism on wall face " + std::to_string(pface[i]));
     prisms.add(P[i].data());
     ++R.prisms;
   }
@@ -2016,8 +2006,8 @@ void Builder::volume() {
   for (auto& j : J) {
     std::size_t n = j.p0.size();
     for (std::size_t k = 0; k + 1 < n; ++k) {
-      std::vector<std::uint32_t> h{j.p0[k], j.p0[k + 1], j.pa[k + 1], j.pa[k], j.pb[k], j.pb[k + 1], j.pc[k + 1], j.pc[k]};
-      valid_or_flip(model::Shape::Hex, h, {0, 3, 2, 1, 4, 7, 6, 5}, "junction hex of edge " + std::to_string(j.edge));
+      std::vector<std::uint32_t> h = junction_hex(j, k);
+      valid_or_flip(model::Shape::Hex, h, "junction hex of edge " + std::to_string(j.edge));
       m.block(model::Shape::Hex, 1, 3, 1).add(h.data());
       ++R.hexes;
       face_quads[j.A].push_back({j.p0[k], j.p0[k + 1], j.pa[k + 1], j.pa[k]});
