@@ -38,6 +38,7 @@
 #pragma once
 
 #include <array>
+#include <cmath>
 #include <cstdint>
 #include <filesystem>
 #include <memory>
@@ -199,6 +200,14 @@ class Shape {
   // Periods of the face's surface in u and v (0: not periodic), e.g. {2 pi, 0} for a surface of
   // revolution: a (u,v) and (u + k period, v) are the same point.
   std::array<double, 2> face_periods(int face) const;
+  // Periodic parameters along a boundary loop (sweep's and shell's face loops): a and b are a
+  // period apart when they differ by more than 3/4 of one (a jump across the seam; a one-division
+  // edge or a pole's p-curve may span half a period). unwrap_towards moves x by whole periods
+  // towards ref when they are.
+  static bool period_jump(double a, double b, double period) { return period > 0 && std::abs(a - b) > 0.75 * period; }
+  static double unwrap_towards(double x, double ref, double period) {
+    return period_jump(x, ref, period) ? x - period * std::round((x - ref) / period) : x;
+  }
   std::string edge_curve_type(int edge) const;    // "line", "circle", "bspline", ...
 
   Impl& impl() { return *impl_; }

@@ -944,13 +944,10 @@ struct Stage {
         // its points nearest to each other, the piece nearest to the loop's last point; the
         // whole loop is then moved by whole periods so that its mean lies in the face's box.
         const auto per = shape.face_periods(f);
-        // (only jumps beyond 3/4 of a period, as in sweep: a one-division edge may span half a
-        // period, and so may a pole's p-curve, after which nothing is moved)
+        // (only jumps beyond 3/4 of a period, cad::Shape::unwrap_towards as in sweep; nothing is
+        // moved after a pole, whose p-curve may span half a period)
         auto near_to = [&](std::array<double, 2> x, std::array<double, 2> ref) {
-          for (int c = 0; c < 2; ++c) {
-            double d = x[c] - ref[c];
-            if (per[c] > 0 && std::abs(d) > 0.75 * per[c]) x[c] -= per[c] * std::round(d / per[c]);
-          }
+          for (int c = 0; c < 2; ++c) x[c] = cad::Shape::unwrap_towards(x[c], ref[c], per[c]);
           return x;
         };
         auto append = [&](std::vector<std::array<double, 2>>& piece, bool pole = false) {
@@ -1013,7 +1010,7 @@ struct Stage {
         bool closes = true;
         if (ok && loop.size() >= 3)
           for (int c = 0; c < 2; ++c)
-            if (per[c] > 0 && std::abs(loop.front()[c] - loop.back()[c]) > 0.75 * per[c]) closes = false;
+            if (cad::Shape::period_jump(loop.front()[c], loop.back()[c], per[c])) closes = false;
         if (closes || !ok) break;
         }
         if (ok && (perw[0] > 0 || perw[1] > 0) && !loop.empty()) {

@@ -957,8 +957,7 @@ void Builder::mesh_face(int f, int copy_from) {
         if (raw[i - 1].pole) continue;  // a pole's p-curve may legitimately span half a period or more
         // only jumps beyond 3/4 of a period: a one-division edge may span half a period (the
         // semicircular trailing-edge arc of a revolved tip)
-        double d = raw[i].uv[k] - raw[i - 1].uv[k];
-        if (std::abs(d) > 0.75 * per[k]) raw[i].uv[k] -= per[k] * std::round(d / per[k]);
+        raw[i].uv[k] = cad::Shape::unwrap_towards(raw[i].uv[k], raw[i - 1].uv[k], per[k]);
       }
     }
     // the loop's last point and its first, one node at one place after unwrapping (a wrapped
@@ -982,7 +981,7 @@ void Builder::mesh_face(int f, int copy_from) {
   auto closes = [&](const std::vector<LP>& raw) {
     if (raw.size() < 3 || raw.back().pole) return true;
     for (int k = 0; k < 2; ++k)
-      if (per_f[k] > 0 && std::abs(raw.front().uv[k] - raw.back().uv[k]) > 0.75 * per_f[k]) return false;
+      if (cad::Shape::period_jump(raw.front().uv[k], raw.back().uv[k], per_f[k])) return false;
     return true;
   };
   for (auto& wire : S.face_wires(f)) {
