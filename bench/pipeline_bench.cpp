@@ -33,13 +33,7 @@
 
 namespace fs = std::filesystem;
 using nlohmann::json;
-using meshflow::bench::Clock;
-using meshflow::bench::fmt;
-using meshflow::bench::median;
-using meshflow::bench::Run;
-using meshflow::bench::secs;
-using meshflow::bench::stage;
-using meshflow::bench::volume_elements;
+using namespace meshflow::bench;  // bench_util.hpp: Clock, fmt, median, Run, secs, stage, ...
 
 namespace {
 
@@ -128,7 +122,7 @@ int main() {
   bool all_ok = true;
   for (auto& w : ws) {
     std::cerr << "pipeline_bench: " << w.file << "\n";
-    fs::path dir = meshflow::bench::fresh_dir("pipeline-bench");
+    fs::path dir = fresh_dir("pipeline-bench");
     std::string wf = src + "/" + w.file;
     json& wd = data["workflows"][w.file];
     wd["title"] = w.title;

@@ -35,13 +35,7 @@
 
 namespace fs = std::filesystem;
 using nlohmann::json;
-using meshflow::bench::Clock;
-using meshflow::bench::fmt;
-using meshflow::bench::median;
-using meshflow::bench::Run;
-using meshflow::bench::secs;
-using meshflow::bench::stage;
-using meshflow::bench::volume_elements;
+using namespace meshflow::bench;  // bench_util.hpp: Clock, fmt, median, Run, secs, stage, ...
 
 namespace {
 
