@@ -59,6 +59,11 @@
 // across faces). Exits through a seam, or through an edge sharing a vertex with the junction edge
 // (an acute corner of the face, where sweep puts the block's end cross-section), do not count.
 // stats.not_honoured.limited_by_face_width {stations, min, at} reports it when it acts.
+// Optionally (`crossing_rounds` > 0, off by default) the shell is thinned where its sampled
+// surface crosses itself: point constraints like the face-width ones at the crossing triangles'
+// points, the fields rebuilt, round by round (shell_stage.cpp "2b"); it changes the fields
+// wherever it acts: stats.not_honoured.thinned_for_crossings {rounds, crossings_before, points,
+// min_scale, at}.
 //
 // ── Directions ──────────────────────────────────────────────────────────────────────────
 // Face interior: the unit normal into the fluid. Edges (per side when they differ):
@@ -100,7 +105,10 @@
 //   then the f64/i32 arrays the header's "arrays" list names, in that order, little-endian:
 //     face_grid_<f>   f64 [nv][nu][4]  (t, dx, dy, dz) — node (i,j) at u0+i·du, v0+j·dv
 //     edge_field_<e>  f64 [n][4]       (t, dx, dy, dz) per side when the sides differ
-//     shell_points    f64 [n][3]       sampled shell surface (conforming triangulation)
+//     shell_points    f64 [n][3]       sampled shell surface (conforming triangulation; interior
+//                                      points on the field grid, refined per face until a chord's
+//                                      sag is at most 0.1 x the face's least thickness: stats
+//                                      sampling_refined_faces)
 //     shell_wall      f64 [n][3]       the wall point each shell point was swept from
 //     shell_tris      i32 [m][3]
 //     shell_tri_face  i32 [m]          the wall face of each triangle

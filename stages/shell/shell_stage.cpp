@@ -423,10 +423,70 @@ struct Stage {
     auto nb = ws_index->nearest(x, 1);
     return std::min(T, ws_t[nb[0].first] + grad * nb[0].second);
   }
-  double thickness_at(const Vec3& x, const std::vector<int>& faces) const {
+  double thickness_at(const Vec3& x, const std::vector<int>& faces, bool with_crossing_limits = true) const {
     double t = medial_thickness_at(x, faces);
     for (auto& L : width_limits) t = std::min(t, L.a + grad * norm(sub(x, L.p)));
+    if (with_crossing_limits)
+      for (auto& L : crossing_limits) t = std::min(t, L.a + kCrossingGradient * grad * norm(sub(x, L.p)));
     return t;
+  }
+
+  // ── 2b. thinning where the sampled shell crosses itself (crossing_rounds > 0) ──
+  // The medial bound keeps offsets of facing walls apart, but the shell can still fold where the
+  // fields turn faster than the layer is thick: round a leading or trailing edge far thinner than
+  // the layer next to a junction (Rotor 67's blade root), at the corners of junction strips, at
+  // convex edges whose averaged directions converge on a neighbour. Where the sampled surface
+  // crosses, every point of the two triangles gets a point constraint t(x) <= kCrossingScale x
+  // t(S) + kCrossingGradient g |x - S|, S the wall point whose thickness sets the point's offset
+  // (for a strip corner PC: its junction station P0, whose thickness is the strip's width): a
+  // Lipschitz dimple a few thicknesses wide, no step. The fields and the sampled surface are
+  // then built again, up to crossing_rounds times, never below kCrossingFloor x the thickness
+  // without these constraints; the round with the fewest crossings is kept, and a round that
+  // brings the shell nearer to a wall than kCrossingClearance x the unthinned
+  // walls_over_thickness is not (a dimple beside a junction corner can turn a strip's corner
+  // onto the other face: DLR-F6's wing-pylon corner). Off by default: it changes the fields, so
+  // the near-field mesh, wherever it acts. Pairs that survive are reported (self_intersections).
+  static constexpr double kCrossingScale = 0.75, kCrossingFloor = 0.2;
+  int max_crossing_rounds = 0;  // parameter crossing_rounds (0: off)
+  static constexpr double kCrossingClearance = 0.5;  // x the unthinned walls_over_thickness
+  static constexpr double kCrossingGradient = 0.25;  // x max_gradient: dimples about 3 thicknesses wide
+  std::vector<WidthLimit> crossing_limits;
+  long crossing_points = 0;
+  double crossing_min_scale = 1;
+  Vec3 crossing_min_at{};
+  // adds the constraints of one round; false when no point could be thinned further
+  bool add_crossing_limits(const IntersectionReport& inter) {
+    std::set<int> pts;
+    for (auto [i, j] : inter.all)
+      for (int t : {i, j})
+        for (int c = 0; c < 3; ++c) pts.insert(out.shell_tris[t][c]);
+    bool added = false;
+    std::vector<int> faces;
+    for (int f = 0; f < nf; ++f) faces.push_back(f);  // any wall face: the bound near W
+    for (int q : pts) {
+      const Vec3& W = point_source[q];
+      double t = thickness_at(W, faces);
+      double base = thickness_at(W, faces, false);
+      if (!(base > 0)) continue;
+      double a = std::max(kCrossingScale * t, kCrossingFloor * base);
+      if (!(a < t * (1 - 1e-6))) continue;
+      crossing_limits.push_back({W, a});
+      added = true;
+    }
+    return added;
+  }
+  // forget the fields and the sampled surface (edge_fields .. sample_surface append to them)
+  void reset_fields() {
+    for (auto& I : E) I.dir.clear(), I.sides.clear(), I.th.clear();
+    grids.clear();
+    strip_memo.clear();
+    out = ShellData{};
+    point_faces.clear();
+    point_source.clear();
+    strip_fallback.clear();
+    refined_faces.clear();
+    faces_unsampled = 0;
+    unsampled_why.clear();
   }
 
   // ── 3. edge fields ──
@@ -818,15 +878,22 @@ struct Stage {
   long faces_unsampled = 0;
   std::vector<std::string> unsampled_why;
   std::vector<std::vector<int>> point_faces;  // non-wall faces each shell point slides on
+  std::vector<Vec3> point_source;             // the wall point whose thickness sets each offset
   std::vector<int> strip_fallback;            // faces sampled over their junction strips (loop not simple)
+  static constexpr double kSag = 0.1;         // sampled-surface chord sag, x the face's least thickness
+  static constexpr int kMaxRefine = 8;
+  std::vector<std::array<int, 3>> refined_faces;  // (face, ru, rv) sampled finer than their grid
   void sample_surface() {
     // ids: vertex -> id, (edge, station, side) -> id
     std::map<int, int> vid;
     std::map<std::tuple<int, int, int>, int> eid;
-    auto add_point = [&](Vec3 wallp, Vec3 shellp, std::vector<int> slide) {
+    // src: the wall point whose thickness sets this point's offset (a strip point PC: the edge
+    // station P0, whose thickness is the strip's width), for the thinning of crossings
+    auto add_point = [&](Vec3 wallp, Vec3 shellp, std::vector<int> slide, const Vec3* src = nullptr) {
       out.shell_wall.push_back(wallp);
       out.shell_points.push_back(shellp);
       point_faces.push_back(std::move(slide));
+      point_source.push_back(src ? *src : wallp);
       return static_cast<int>(out.shell_points.size() - 1);
     };
     auto vertex_id = [&](int v) {
@@ -883,7 +950,8 @@ struct Stage {
         auto it = end_id.find(v);
         if (it != end_id.end()) return it->second;
         double c = 1.0 / end_count[v];
-        int id = add_point(mul(end_sum[v].first, c), mul(end_sum[v].second, c), {});
+        const Vec3 src = k == 0 ? I.p.front() : I.p.back();
+        int id = add_point(mul(end_sum[v].first, c), mul(end_sum[v].second, c), {}, &src);
         end_id[v] = id;
         return id;
       }
@@ -891,7 +959,7 @@ struct Stage {
       auto it = sid.find(key);
       if (it != sid.end()) return it->second;
       StripStation q = strip_station(e, k);
-      int id = add_point(q.PA, q.PC, {});
+      int id = add_point(q.PA, q.PC, {}, &I.p[k]);
       sid[key] = id;
       return id;
     };
@@ -1078,12 +1146,61 @@ struct Stage {
       std::unique_ptr<medial::NearestIndex> bidx;
       if (!bp.empty()) bidx = std::make_unique<medial::NearestIndex>(bp);
       const std::size_t nb = uv.size();
-      for (int j = 1; j + 1 < G.nv; ++j)
-        for (int i = 1; i + 1 < G.nu; ++i) {
-          double u = G.u0 + (G.u1 - G.u0) * i / (G.nu - 1), v = G.v0 + (G.v1 - G.v0) * j / (G.nv - 1);
+      // The sampled surface must follow the shell, not cut through it: a chord of length c on
+      // a wall of curvature k sags c^2 k / 8, and where that is a good part of the thickness
+      // (DLR-F6's nacelle: 18 mm chords, r = 45 mm, a 0.5 mm layer) triangles of one face's
+      // shell pass through each other. So the interior lattice is the field grid refined by
+      // (ru, rv) until the sag of a lattice step is at most kSag x the face's least thickness
+      // (the field is the grid's bilinear interpolant, so the finer points sample exactly what
+      // sweep evaluates). Curvature: the turn of the fluid normal between neighbouring grid
+      // nodes inside the face over their distance. Faces with a gentle enough curvature keep
+      // the grid itself (ru = rv = 1: their shells keep their bytes).
+      int ru = 1, rv = 1;
+      {
+        std::vector<Vec3> X(std::size_t(G.nu) * G.nv), N(X.size());
+        std::vector<char> in(X.size(), 0);
+        double tmin = INFINITY;
+        for (int j = 0; j < G.nv; ++j)
+          for (int i = 0; i < G.nu; ++i) {
+            double u = G.u0 + (G.u1 - G.u0) * i / (G.nu - 1), v = G.v0 + (G.v1 - G.v0) * j / (G.nv - 1);
+            std::size_t q = std::size_t(j) * G.nu + i;
+            if (!(in[q] = inside(u, v))) continue;
+            X[q] = v3(shape.face_point(f, u, v)), N[q] = fluid_normal(f, u, v);
+            tmin = std::min(tmin, G.data[q * 4]);
+          }
+        double su = 0, sv = 0;  // largest sag of one grid step along u / v
+        for (int j = 0; j < G.nv; ++j)
+          for (int i = 0; i < G.nu; ++i) {
+            std::size_t q = std::size_t(j) * G.nu + i;
+            if (!in[q]) continue;
+            for (int dir = 0; dir < 2; ++dir) {
+              int a = i + (dir == 0), b = j + (dir == 1);
+              if (a >= G.nu || b >= G.nv) continue;
+              std::size_t q2 = std::size_t(b) * G.nu + a;
+              if (!in[q2]) continue;
+              double c = norm(sub(X[q2], X[q]));
+              double ang = std::acos(std::clamp(dot(N[q], N[q2]), -1.0, 1.0));
+              double sag = c * ang / 8;  // c^2 k / 8 with k = ang / c
+              (dir == 0 ? su : sv) = std::max(dir == 0 ? su : sv, sag);
+            }
+          }
+        if (std::isfinite(tmin) && tmin > 0) {
+          // refining a step by r divides its sag by r^2
+          auto factor = [&](double sag) {
+            return std::clamp(static_cast<int>(std::ceil(std::sqrt(sag / (kSag * tmin)) - 1e-9)), 1, kMaxRefine);
+          };
+          ru = factor(su), rv = factor(sv);
+        }
+      }
+      if (ru > 1 || rv > 1) refined_faces.push_back({f, ru, rv});
+      const int Nu = (G.nu - 1) * ru + 1, Nv = (G.nv - 1) * rv + 1;
+      const double hmin = std::min(h, std::min((G.u1 - G.u0), (G.v1 - G.v0)) > 0 ? h / std::max(ru, rv) : h);
+      for (int j = 1; j + 1 < Nv; ++j)
+        for (int i = 1; i + 1 < Nu; ++i) {
+          double u = G.u0 + (G.u1 - G.u0) * i / (Nu - 1), v = G.v0 + (G.v1 - G.v0) * j / (Nv - 1);
           if (!inside(u, v)) continue;
           Vec3 x = v3(shape.face_point(f, u, v));
-          if (bidx && bidx->nearest(x, 1)[0].second < 0.5 * h) continue;
+          if (bidx && bidx->nearest(x, 1)[0].second < 0.5 * hmin) continue;
           uv.push_back({u, v});
           gid.push_back(-1);
         }
@@ -1146,6 +1263,48 @@ struct Stage {
             }
         }
     }
+  }
+
+  // ── 5b. clearance of the sampled shell to the walls (nearest wall sample, refined by
+  // projection on its face; rel_wall: over the point's own offset) and to the far field ──
+  struct Clearance {
+    double wall = INFINITY, far = INFINITY, rel_wall = INFINITY;
+    Vec3 at_wall{}, at_far{};
+  };
+  std::unique_ptr<medial::NearestIndex> clear_widx, clear_fidx;
+  std::vector<int> clear_wi;
+  Clearance clearance() {
+    Clearance c;
+    if (!clear_widx) {
+      std::vector<medial::Vec3> wp, fp;
+      for (std::size_t i = 0; i < M.samples.size(); ++i) {
+        auto& s = M.samples[i];
+        bool w = false, far = false;
+        for (int f : s.faces)
+          if (f >= 0) w |= wall[f] > 0, far |= shape.face_tag(f) == cad::Tag::farfield;
+        if (w) wp.push_back(s.p), clear_wi.push_back(static_cast<int>(i));
+        if (far) fp.push_back(s.p);
+      }
+      clear_widx = std::make_unique<medial::NearestIndex>(wp);
+      if (!fp.empty()) clear_fidx = std::make_unique<medial::NearestIndex>(fp);
+    }
+    for (std::size_t q = 0; q < out.shell_points.size(); ++q) {
+      const Vec3& x = out.shell_points[q];
+      auto [j, d] = clear_widx->nearest(x, 1)[0];
+      const auto& s = M.samples[clear_wi[j]];
+      if (s.kind == 0) {  // refine by projection on the sample's face
+        auto pr = shape.project_to_face(s.id, cv(x), cad::Vec2{s.u, s.v});
+        if (pr.distance < d && shape.face_contains_uv(s.id, pr.u, pr.v, 1e-7)) d = pr.distance;
+      }
+      if (d < c.wall) c.wall = d, c.at_wall = x;
+      double tq = norm(sub(x, out.shell_wall[q]));
+      if (tq > 0) c.rel_wall = std::min(c.rel_wall, d / tq);
+      if (clear_fidx) {
+        auto [jf, df] = clear_fidx->nearest(x, 1)[0];
+        if (df < c.far) c.far = df, c.at_far = x;
+      }
+    }
+    return c;
   }
 
   // ── 6. blocks ──
@@ -1212,6 +1371,7 @@ struct Stage {
     lfs_factor = P.at("lfs_factor");
     alpha = P.at("alpha"), grad = P.at("max_gradient"), blend = P.at("blend_length");
     junction_angle = P.at("junction_angle_deg"), max_grid = P.at("max_grid");
+    max_crossing_rounds = P.at("crossing_rounds");
     Vec3 lo{INFINITY, INFINITY, INFINITY}, hi{-INFINITY, -INFINITY, -INFINITY};
     for (int f : walls) {
       auto b = shape.face_box(f);
@@ -1230,48 +1390,65 @@ struct Stage {
     junction_width_limits();
     ctx.progress(0.15, "thickness on the wall samples");
     sample_thickness();
-    ctx.progress(0.25, "edge fields");
-    edge_fields();
-    face_grids();
-    ctx.progress(0.7, "sampled shell surface");
-    sample_surface();
-    ctx.progress(0.85, "checks");
-    auto inter = self_intersections(out.shell_points, out.shell_tris);
-
-    // clearance of the shell points to the walls and to the far field
-    double clear_wall = INFINITY, clear_far = INFINITY, rel_wall = INFINITY;
-    Vec3 at_wall{}, at_far{};
-    {
-      std::vector<medial::Vec3> wp, fp;
-      std::vector<int> wi, fi;
-      for (std::size_t i = 0; i < M.samples.size(); ++i) {
-        auto& s = M.samples[i];
-        bool w = false, far = false;
-        for (int f : s.faces)
-          if (f >= 0) w |= wall[f] > 0, far |= shape.face_tag(f) == cad::Tag::farfield;
-        if (w) wp.push_back(s.p), wi.push_back(static_cast<int>(i));
-        if (far) fp.push_back(s.p), fi.push_back(static_cast<int>(i));
+    IntersectionReport inter;
+    long crossings_first = -1;
+    int crossing_rounds = 0;
+    // the round with the fewest crossings (the constraints it had): kept when later rounds,
+    // whose dimples move the sampled surface elsewhere, end with more
+    long best_pairs = -1;
+    double rel_first = 0;
+    std::size_t best_limits = 0;
+    int best_round = 0;
+    for (bool final = false;;) {
+      ctx.progress(0.25, crossing_rounds ? "edge fields (thinning round " + std::to_string(crossing_rounds) + ")" : "edge fields");
+      edge_fields();
+      face_grids();
+      ctx.progress(0.7, "sampled shell surface");
+      sample_surface();
+      ctx.progress(0.85, "checks");
+      inter = self_intersections(out.shell_points, out.shell_tris);
+      if (final) break;
+      // a round must not bring the shell much nearer to a wall than the unthinned one was (a
+      // dimple next to a junction corner can turn a strip's corner point onto the other face)
+      const double rel = inter.pairs > 0 || crossing_rounds > 0 ? clearance().rel_wall : 0;
+      if (crossings_first < 0) crossings_first = inter.pairs, rel_first = rel;
+      const bool admissible = crossing_rounds == 0 || rel >= kCrossingClearance * rel_first;
+      if (admissible && (best_pairs < 0 || inter.pairs < best_pairs))
+        best_pairs = inter.pairs, best_limits = crossing_limits.size(), best_round = crossing_rounds;
+      bool more = admissible && inter.pairs > 0 && crossing_rounds < max_crossing_rounds;
+      if (more) {
+        ctx.log(std::to_string(inter.pairs) + " crossing pairs in the sampled shell; thinning there (round " +
+                std::to_string(crossing_rounds + 1) + ")");
+        more = add_crossing_limits(inter);
       }
-      medial::NearestIndex widx(wp);
-      std::unique_ptr<medial::NearestIndex> fidx;
-      if (!fp.empty()) fidx = std::make_unique<medial::NearestIndex>(fp);
-      for (std::size_t q = 0; q < out.shell_points.size(); ++q) {
-        const Vec3& x = out.shell_points[q];
-        auto [j, d] = widx.nearest(x, 1)[0];
-        const auto& s = M.samples[wi[j]];
-        if (s.kind == 0) {  // refine by projection on the sample's face
-          auto pr = shape.project_to_face(s.id, cv(x), cad::Vec2{s.u, s.v});
-          if (pr.distance < d && shape.face_contains_uv(s.id, pr.u, pr.v, 1e-7)) d = pr.distance;
-        }
-        if (d < clear_wall) clear_wall = d, at_wall = x;
-        double tq = norm(sub(x, out.shell_wall[q]));
-        if (tq > 0) rel_wall = std::min(rel_wall, d / tq);
-        if (fidx) {
-          auto [jf, df] = fidx->nearest(x, 1)[0];
-          if (df < clear_far) clear_far = df, at_far = x;
-        }
+      if (more) {
+        ++crossing_rounds;
+        reset_fields();
+        continue;
+      }
+      if (admissible && inter.pairs <= best_pairs) break;
+      // a later round ended worse: build the best round's shell again
+      ctx.log("keeping thinning round " + std::to_string(best_round) + " (" + std::to_string(best_pairs) + " crossing pairs)");
+      crossing_limits.resize(best_limits);
+      crossing_rounds = best_round;
+      reset_fields();
+      final = true;
+    }
+    if (crossing_rounds > 0) {  // what the kept constraints do
+      crossing_points = static_cast<long>(crossing_limits.size());
+      crossing_min_scale = 1;
+      std::vector<int> all(nf);
+      std::iota(all.begin(), all.end(), 0);
+      for (auto& L : crossing_limits) {
+        double base = thickness_at(L.p, all, false);
+        if (base > 0 && L.a / base < crossing_min_scale) crossing_min_scale = L.a / base, crossing_min_at = L.p;
       }
     }
+
+    // clearance of the shell points to the walls and to the far field
+    const Clearance cl = clearance();
+    const double clear_wall = cl.wall, clear_far = cl.far, rel_wall = cl.rel_wall;
+    const Vec3 at_wall = cl.at_wall, at_far = cl.at_far;
     // honoured thickness
     double tmin = INFINITY, tmax = 0;
     Vec3 worst{};
@@ -1302,6 +1479,12 @@ struct Stage {
           {"stations", width_limited_stations}, {"min", width_limit_min}, {"at", width_limit_at}};
     stats["corner_balls_ignored"] = corner_balls;
     stats["self_intersections"] = inter.pairs;
+    if (crossing_rounds > 0)  // only when it acts: shells that never crossed keep their bytes
+      stats["not_honoured"]["thinned_for_crossings"] = {{"rounds", crossing_rounds},
+                                                        {"crossings_before", crossings_first},
+                                                        {"points", crossing_points},
+                                                        {"min_scale", crossing_min_scale},
+                                                        {"at", crossing_min_at}};
     nlohmann::json rundiag;  // diagnostics of this run: in the stage's report (stats), not in the artifact
     if (inter.pairs > 0) stats["self_intersection_at"] = inter.first;
     {
@@ -1366,6 +1549,11 @@ struct Stage {
     if (std::isfinite(clear_far)) stats["min_clearance"]["farfield_at"] = at_far;
     stats["faces_unsampled"] = faces_unsampled;
     rundiag["junction_strip_fallback_faces"] = strip_fallback;
+    {
+      nlohmann::json rf = nlohmann::json::array();
+      for (auto [f, a, b] : refined_faces) rf.push_back({f, a, b});
+      rundiag["sampling_refined_faces"] = rf;  // (face, ru, rv): interior lattice finer than the field grid
+    }
     if (!unsampled_why.empty()) stats["unsampled"] = unsampled_why;
     long nj = 0, nwall_other = 0, nww = 0;
     nlohmann::json jlist = nlohmann::json::array();
@@ -1426,7 +1614,7 @@ void run(StageContext& ctx) {
 }
 
 StageRegistrar reg({.kind = "shell",
-                    .version = 2,
+                    .version = 3,
                     .summary = "near-field shell bounded by the medial object: thickness/direction fields, prism and C-type hex junction blocks",
                     .libraries = {"CGAL " CGAL_VERSION_STR},
                     .run = run});

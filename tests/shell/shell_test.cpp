@@ -321,6 +321,7 @@ TEST_CASE("shell on the wing STEP: junction blocks at the root (C) and none (O),
   long pairs = a.stats_.at("self_intersections").get<long>();
   CHECK(pairs <= 11);
   WARN(pairs == 0);
+  CHECK(a.stats_.at("sampling_refined_faces").is_array());
   auto cs = meshflow::cad::Shape::load(shape.path);
   auto sym = cs.faces_with_tag(meshflow::cad::Tag::symmetry);
   REQUIRE(sym.size() == 1);
@@ -358,4 +359,36 @@ TEST_CASE("shell on the wing STEP: junction blocks at the root (C) and none (O),
   CHECK(count_kind(dO, "hex_junction") == 0);
   CHECK(o.stats_.at("counts").at("junction_edges").get<long>() == 0);
   CHECK(o.stats_.at("self_intersections").get<long>() <= 11);
+  // crossing_rounds: the shell is thinned where its sampled surface crosses (11 -> 1 pair: the
+  // one left is the tip face's own shell, same_face 7-7), only there, deterministically
+  TestContext t1("shell", {{"crossing_rounds", 8}}, {shape, medial}), t2("shell", {{"crossing_rounds", 8}}, {shape, medial});
+  t1.run();
+  t2.run();
+  CHECK(mftest::read_text(t1.artifact("shell").path) == mftest::read_text(t2.artifact("shell").path));
+  long thin_pairs = t1.stats_.at("self_intersections").get<long>();
+  MESSAGE("wing STEP shell, crossing_rounds 8: " << thin_pairs << " crossing pairs (" << pairs << " without), "
+                                                 << t1.stats_.at("not_honoured").dump());
+  CHECK(thin_pairs < pairs);
+  CHECK(thin_pairs <= 1);
+  REQUIRE(t1.stats_.at("not_honoured").contains("thinned_for_crossings"));
+  const auto& tc = t1.stats_.at("not_honoured").at("thinned_for_crossings");
+  CHECK(tc.at("rounds").get<int>() >= 1);
+  CHECK(tc.at("crossings_before").get<long>() == pairs);
+  CHECK(tc.at("min_scale").get<double>() >= 0.2 - 1e-9);
+  CHECK(t1.stats_.at("min_clearance").at("walls_over_thickness").get<double>() >=
+        0.5 * a.stats_.at("min_clearance").at("walls_over_thickness").get<double>());
+  CHECK_FALSE(a.stats_.at("not_honoured").contains("thinned_for_crossings"));
+  // thinner somewhere, never thicker: the same wall points (the sampled surface keeps its
+  // topology where nothing is thinned), offsets no longer than without
+  sh::ShellData dt = sh::read(t1.artifact("shell").path);
+  double tmin_a = INFINITY, tmin_t = INFINITY;
+  for (std::size_t i = 0; i < d.shell_points.size(); ++i) {
+    auto& w = d.shell_wall[i];
+    tmin_a = std::min(tmin_a, std::hypot(d.shell_points[i][0] - w[0], d.shell_points[i][1] - w[1], d.shell_points[i][2] - w[2]));
+  }
+  for (std::size_t i = 0; i < dt.shell_points.size(); ++i) {
+    auto& w = dt.shell_wall[i];
+    tmin_t = std::min(tmin_t, std::hypot(dt.shell_points[i][0] - w[0], dt.shell_points[i][1] - w[1], dt.shell_points[i][2] - w[2]));
+  }
+  CHECK(tmin_t < tmin_a);
 }

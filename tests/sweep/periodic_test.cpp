@@ -228,7 +228,7 @@ TEST_CASE("workflows/rotor67.yaml through tet: valid conforming linear hybrid me
   CHECK(sh.at("counts").at("hex_junction_blocks").get<int>() == 2);
   CHECK(sh.at("faces_unsampled").get<int>() == 0);
   CHECK(sh.at("junction_strip_fallback_faces").empty());
-  CHECK(sh.at("self_intersections").get<long>() <= 38);
+  CHECK(sh.at("self_intersections").get<long>() <= 41);  // 38 when the blade was sampled on its field grid only (sampling_refined_faces)
   // the blade's layer fans into the hub's and casing's around its leading and trailing edges:
   // sweep found crossings of the outer surface and cleared every one by thinning (without it
   // TetGen aborts on this surface)
