@@ -49,6 +49,15 @@
 // are raised to 1 (an edge shorter than the local size needs one division and is not counted as
 // a deviation; otherwise a 0.0025-long blunt trailing edge would dominate the objective).
 //
+// A wall edge along a narrow face gets a hard lower bound instead (IPEdge::min_n): its chords
+// sag c^2 k / 8 towards the face, and where that reaches the face's width across the edge (the
+// DLR-F6 nacelle's base ring: r = 25 mm circles 0.7 mm apart, 30-degree chords sag 0.88 mm)
+// the face's boundary loops cross in its parameter plane and sweep cannot mesh it. So
+// n_e >= ceil(integral of ds sqrt(k / (8 beta W))), beta = 0.25 (sag at most a quarter of the
+// width W: the least distance from the edge to the other edges of its faces that share no
+// vertex with it). It is not a target: an equal group with a coarser shell image would
+// otherwise pull the count back under it. stats.width_limited_edges lists where it acts.
+//
 // ── Infeasible problems ────────────────────────────────────────────────────────────────
 // solve_intervals throws InfeasibleError (a StageError) whose message names a minimal set of
 // conflicting constraint groups and their edges: a deletion filter drops the groups one at a
@@ -96,6 +105,7 @@ struct IPEdge {
   std::string name;
   double target = 1;  // > 0
   double weight = 1;  // >= 0
+  int min_n = 1;      // a hard lower bound (the width of the faces across a wall edge), >= 1
 };
 struct IPGroup {
   std::string name;               // shown in messages

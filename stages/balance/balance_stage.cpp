@@ -11,6 +11,7 @@
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <optional>
 #include <array>
 #include <chrono>
 #include <cmath>
@@ -40,7 +41,43 @@ struct CadEdgeTable {
   std::vector<double> t, s;  // parameters and cumulative arc length at kSamples+1 points
   std::vector<double> c;     // cumulative target (integral of ds / h) at the same points
   double length = 0, target = 0;
+  double width = INFINITY;  // of the faces across the edge (width_across), when finite
+  int min_n = 1;            // divisions the width asks for at least (balance.hpp, "Targets")
 };
+
+// The least distance from edge e to the other edges of its faces that share no vertex with it,
+// below `limit` (edge boxes farther apart are skipped), else INFINITY. Sampled at 17 points of e.
+double width_across(const cad::Shape& shape, int e, double limit) {
+  if (shape.edge_degenerate(e)) return INFINITY;
+  auto ve = shape.edge_vertices(e);
+  auto be = shape.edge_box(e);
+  cad::Range r = shape.edge_range(e);
+  double w = INFINITY;
+  for (int f : shape.edge_faces(e))
+    for (int e2 : shape.face_edges(f)) {
+      if (e2 == e || shape.edge_degenerate(e2) || shape.edge_is_seam(e2, f)) continue;
+      auto v2 = shape.edge_vertices(e2);
+      bool share = false;
+      for (int a : ve)
+        for (int b : v2) share |= a >= 0 && a == b;
+      if (share) continue;
+      auto b2 = shape.edge_box(e2);
+      double gap2 = 0;
+      for (int k = 0; k < 3; ++k) {
+        double g = std::max({0.0, b2.lo[k] - be.hi[k], be.lo[k] - b2.hi[k]});
+        gap2 += g * g;
+      }
+      if (std::sqrt(gap2) >= std::min(limit, w)) continue;
+      std::optional<double> hint;
+      for (int i = 0; i <= 16; ++i) {
+        auto pr = shape.project_to_edge(e2, shape.edge_point(e, r.lo + (r.hi - r.lo) * i / 16), hint);
+        hint = pr.t;
+        w = std::min(w, pr.distance);
+      }
+    }
+  return w < limit ? w : INFINITY;
+}
+constexpr double kWidthSag = 0.25;  // chord sag allowed, x the width of the faces across an edge
 
 CadEdgeTable tabulate(const cad::Shape& shape, int e, const Sizing& S) {
   CadEdgeTable T;
@@ -63,6 +100,9 @@ CadEdgeTable tabulate(const cad::Shape& shape, int e, const Sizing& S) {
     }
     return k;
   };
+  T.width = width_across(shape, e, 4 * S.hmax);
+  double nw = 0;  // integral of ds sqrt(k / (8 kWidthSag W))
+  auto wrate = [&](double k) { return std::isfinite(T.width) && k > 0 ? std::sqrt(k / (8 * kWidthSag * T.width)) : 0.0; };
   double dt = (r.hi - r.lo) / kSamples, s = 0, n = 0;
   T.t.push_back(r.lo), T.s.push_back(0), T.c.push_back(0);
   double sp0, k0 = speed_kappa(r.lo, sp0);
@@ -81,11 +121,13 @@ CadEdgeTable tabulate(const cad::Shape& shape, int e, const Sizing& S) {
       double spm, km = speed_kappa(0.5 * (a + b), spm), sp1, k1 = speed_kappa(b, sp1);
       s += (b - a) / 6 * (sp0 + 4 * spm + sp1);
       n += (b - a) / 6 * (sp0 / S.h(k0) + 4 * spm / S.h(km) + sp1 / S.h(k1));
+      nw += (b - a) / 6 * (sp0 * wrate(k0) + 4 * spm * wrate(km) + sp1 * wrate(k1));
       T.t.push_back(b), T.s.push_back(s), T.c.push_back(n);
       sp0 = sp1, k0 = k1;
     }
   }
   T.length = s, T.target = n;
+  T.min_n = std::max(1, static_cast<int>(std::ceil(nw - 1e-9)));
   return T;
 }
 
@@ -226,6 +268,8 @@ class Stage {
       auto [L, t] = measure(prob.edges[i].name, sd);
       length[i] = L;
       prob.edges[i].target = std::max(t, 1.0);  // every edge needs one division: a shorter one is not 'off target'
+      Named nm = classify(prob.edges[i].name);
+      if (nm.kind == "wall") prob.edges[i].min_n = table(nm.cad).min_n;
     }
 
     // ── solve ──
@@ -274,6 +318,9 @@ class Stage {
     nlohmann::json cst = nlohmann::json::object();
     for (auto& [k, v] : nkind) cst[k] = v;
     cst["total"] = prob.groups.size();
+    nlohmann::json wl = nlohmann::json::array();  // wall edges the width of their faces gave a minimum
+    for (auto& [e, T] : tables)
+      if (T.min_n > 1) wl.push_back({{"edge", e}, {"width", T.width}, {"min_divisions", T.min_n}});
     nlohmann::json st = {{"edges", prob.edges.size()},
                          {"constraints", cst},
                          {"total_divisions", total},
@@ -286,6 +333,7 @@ class Stage {
                          {"columns", sol.columns},
                          {"size_min", S.hmin},
                          {"size_max", S.hmax},
+                         {"width_limited_edges", wl},
                          {"node_placement", "equal increments of the sizing integral (least-squares skew reduction not done)"}};
     D.stats_json = st.dump();  // deterministic part only: no times in the artifact
     write(D, ctx.output("divisions", "divisions"));
@@ -458,7 +506,7 @@ void run(StageContext& ctx) {
 }
 
 StageRegistrar reg({.kind = "balance",
-                    .version = 1,
+                    .version = 2,
                     .summary = "interval assignment (integer program, lp_solve): divisions per block edge from the turn-angle sizing, equal/periodic/parity constraints",
                     .libraries = {lp_solve_version()},
                     .run = run});

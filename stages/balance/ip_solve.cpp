@@ -139,7 +139,9 @@ Result solve_active(const IPProblem& p, const std::vector<char>& active, bool fe
       for (int e : edges) obj[pcol.at(e)] = obj[pcol.at(e) + 1] = p.edges[e].weight / p.edges[e].target;
     set_obj_fn(L, obj.data());
     set_minim(L);
-    for (auto& [root, cc] : col) set_int(L, cc, TRUE), set_lowbo(L, cc, 1);
+    std::map<int, int> lowbo;  // class root -> the largest min_n of its edges
+    for (int e : edges) lowbo[find(cls, e)] = std::max(lowbo[find(cls, e)], std::max(1, p.edges[e].min_n));
+    for (auto& [root, cc] : col) set_int(L, cc, TRUE), set_lowbo(L, cc, lowbo.at(root));
     for (auto& [g, cc] : kcol) set_int(L, cc, TRUE);
     set_timeout(L, static_cast<long>(std::ceil(p.timeout_s)));
     int st = solve(L);

@@ -132,6 +132,26 @@ TEST_CASE("IP: periodic partner edges get equal counts") {
   CHECK(s.objective == doctest::Approx(brute_force(p, 12)).epsilon(1e-9));
 }
 
+TEST_CASE("IP: a minimum of divisions (a narrow face's edge) is a bound, not a target: its equal group follows it") {
+  // w20 along a 0.7 mm ring would take 9 divisions (its shell image's target pulls it down);
+  // the width asks for 20 at least: both get 20, the free edge keeps its optimum
+  bal::IPProblem p = make({{"w20", 19.9}, {"s20", 8.0}, {"free", 4.4}});
+  group(p, "prism_sweep face 1: equal [w20, s20]", "equal", {0, 1});
+  bal::IPSolution s0 = bal::solve_intervals(p);
+  CHECK(s0.n[0] == s0.n[1]);
+  CHECK(s0.n[0] < 20);
+  p.edges[0].min_n = 20;
+  bal::IPSolution s = bal::solve_intervals(p);
+  CHECK(s.n[0] == 20);
+  CHECK(s.n[1] == 20);
+  CHECK(s.n[2] == 4);
+  // a bound on the other member of the group acts the same; the larger of two bounds wins
+  p.edges[0].min_n = 1, p.edges[1].min_n = 23;
+  CHECK(bal::solve_intervals(p).n[0] == 23);
+  p.edges[0].min_n = 25;
+  CHECK(bal::solve_intervals(p).n[1] == 25);
+}
+
 TEST_CASE("IP: an infeasible problem names a minimal set of conflicting constraints") {
   // A quad-meshed face with three sides a, b, c needs an even sum; a one-layer sweep edge
   // forces a = 1 and a block forces b = c, so the sum 1 + 2b is odd. Unrelated constraints
