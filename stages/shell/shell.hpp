@@ -179,10 +179,15 @@ IntersectionReport self_intersections(const std::vector<Vec3>& points,
                                       const std::vector<std::array<std::int32_t, 3>>& tris);
 
 // Constrained Delaunay triangulation (CGAL, 2D) of points with constrained segments (index
-// pairs): all triangles of the convex hull as index triples, counter-clockwise. The caller keeps
-// the ones inside its domain. Throws std::runtime_error when CGAL fails or when two segments
-// cross (CGAL would insert their intersection point, which has no input index).
+// pairs): all triangles of the convex hull as index triples, counter-clockwise, sorted. With
+// `depth`, each triangle's nesting depth: the number of constrained segments crossed on the way
+// from the unbounded face (flood fill over the triangulation: the triangles inside closed loops
+// of segments, holes excluded, are those of odd depth, decided combinatorially, with no
+// point-in-polygon test that a sliver along a nearly straight boundary could fool). Throws
+// std::runtime_error when CGAL fails or when two segments cross (CGAL would insert their
+// intersection point, which has no input index).
 std::vector<std::array<std::int32_t, 3>> cdt2(const std::vector<std::array<double, 2>>& points,
-                                              const std::vector<std::array<std::int32_t, 2>>& segments);
+                                              const std::vector<std::array<std::int32_t, 2>>& segments,
+                                              std::vector<int>* depth = nullptr);
 
 }  // namespace meshflow::shell

@@ -10,6 +10,7 @@
 #include <CGAL/Constrained_Delaunay_triangulation_2.h>
 #include <CGAL/Triangulation_vertex_base_with_info_2.h>
 #include <CGAL/Constrained_triangulation_face_base_2.h>
+#include <CGAL/Triangulation_face_base_with_info_2.h>
 #include <stdexcept>
 
 #include <algorithm>
@@ -79,9 +80,11 @@ IntersectionReport self_intersections(const std::vector<Vec3>& points,
 }
 
 std::vector<std::array<std::int32_t, 3>> cdt2(const std::vector<std::array<double, 2>>& points,
-                                              const std::vector<std::array<std::int32_t, 2>>& segments) {
+                                              const std::vector<std::array<std::int32_t, 2>>& segments,
+                                              std::vector<int>* depth) {
   using Vb = CGAL::Triangulation_vertex_base_with_info_2<std::int32_t, K>;
-  using Fb = CGAL::Constrained_triangulation_face_base_2<K>;
+  using Fbb = CGAL::Triangulation_face_base_with_info_2<int, K>;  // nesting depth
+  using Fb = CGAL::Constrained_triangulation_face_base_2<K, Fbb>;
   using Tds = CGAL::Triangulation_data_structure_2<Vb, Fb>;
   using CDT = CGAL::Constrained_Delaunay_triangulation_2<K, Tds, CGAL::Exact_predicates_tag>;
   CDT cdt;
@@ -105,11 +108,39 @@ std::vector<std::array<std::int32_t, 3>> cdt2(const std::vector<std::array<doubl
   if (cdt.number_of_vertices() != nin)
     throw std::runtime_error("constrained Delaunay triangulation: " + std::to_string(cdt.number_of_vertices() - nin) +
                              " boundary segment crossing(s) in (u,v)");
-  std::vector<std::array<std::int32_t, 3>> out;
+  if (depth) {
+    // nesting depth: 0 for the faces reached from the unbounded face without crossing a
+    // constrained segment, +1 across each one (flood fill by combinatorics, no geometric test)
+    for (auto f = cdt.all_faces_begin(); f != cdt.all_faces_end(); ++f) f->info() = -1;
+    std::vector<CDT::Face_handle> front = {cdt.infinite_face()}, next;
+    for (int level = 0; !front.empty(); ++level, front.swap(next), next.clear()) {
+      std::vector<CDT::Face_handle> stack;
+      for (auto f : front)
+        if (f->info() < 0) f->info() = level, stack.push_back(f);
+      while (!stack.empty()) {
+        auto f = stack.back();
+        stack.pop_back();
+        for (int i = 0; i < 3; ++i) {
+          auto g = f->neighbor(i);
+          if (g->info() >= 0) continue;
+          if (cdt.is_constrained(CDT::Edge(f, i))) next.push_back(g);
+          else g->info() = level, stack.push_back(g);
+        }
+      }
+    }
+  }
+  std::vector<std::pair<std::array<std::int32_t, 3>, int>> out;
   for (auto f = cdt.finite_faces_begin(); f != cdt.finite_faces_end(); ++f)
-    out.push_back({f->vertex(0)->info(), f->vertex(1)->info(), f->vertex(2)->info()});
+    out.push_back({{f->vertex(0)->info(), f->vertex(1)->info(), f->vertex(2)->info()}, f->info()});
   std::sort(out.begin(), out.end());
-  return out;
+  std::vector<std::array<std::int32_t, 3>> tris;
+  tris.reserve(out.size());
+  if (depth) depth->clear();
+  for (auto& [t, d] : out) {
+    tris.push_back(t);
+    if (depth) depth->push_back(d);
+  }
+  return tris;
 }
 
 }  // namespace meshflow::shell

@@ -1205,16 +1205,25 @@ struct Stage {
           gid.push_back(-1);
         }
       std::vector<std::array<std::int32_t, 3>> tris;
+      std::vector<int> depth;
       try {
-        tris = cdt2(uv, seg);
+        tris = cdt2(uv, seg, &depth);
       } catch (const std::exception& ex) {
         ++faces_unsampled;
         unsampled_why.push_back("face " + std::to_string(f) + ": " + ex.what());
         continue;
       }
-      for (auto& t : tris) {
-        double cu = (uv[t[0]][0] + uv[t[1]][0] + uv[t[2]][0]) / 3, cv = (uv[t[0]][1] + uv[t[1]][1] + uv[t[2]][1]) / 3;
-        if (!inside(cu, cv)) continue;
+      for (std::size_t ti = 0; ti < tris.size(); ++ti) {
+        const auto& t = tris[ti];
+        // Inside the face: odd nesting depth in the CDT (outside the loops or in a hole: even).
+        // Not by the centroid in the loops: along an edge whose p-curve is an iso-line (the round
+        // tip's edges at u = pi, the blunt trailing edge's root edge) the stations wobble by 1e-8
+        // in (u,v), the hull then holds zero-area triangles of three stations of one edge
+        // outside the loop, whose centroid lies on the boundary and was taken for inside half
+        // the time; in 3D they are real triangles along the edge, lying across the shell's own
+        // triangles there (the paper's wing: crossings at the root of the trailing-edge face and
+        // at the tip's trailing edge; the demo: 4 such triangles along the root, no crossing)
+        if (depth[ti] % 2 == 0) continue;
         std::array<std::int32_t, 3> g{};
         for (int c = 0; c < 3; ++c) {
           int li = t[c];

@@ -258,6 +258,12 @@ TEST_CASE("shell: cdt2 triangulates a square with a hole and refuses crossing se
   CHECK(t.size() == 10);  // 2n - 2 - hull = 16 - 2 - 4
   for (auto& tri : t)
     for (int c : tri) CHECK((c >= 0 && c < 8));
+  // nesting depth: the 8 triangles between the loops have depth 1, the 2 of the hole depth 2
+  std::vector<int> depth;
+  CHECK(sh::cdt2(p, seg, &depth) == t);
+  REQUIRE(depth.size() == t.size());
+  CHECK(std::count(depth.begin(), depth.end(), 1) == 8);
+  CHECK(std::count(depth.begin(), depth.end(), 2) == 2);
   // the two diagonals of the square cross: the intersection point would be a new vertex with no
   // input index (this used to crash the shell on DLR-F6, where station chords crossed in (u,v))
   seg.push_back({0, 2});
@@ -315,12 +321,13 @@ TEST_CASE("shell on the wing STEP: junction blocks at the root (C) and none (O),
   MESSAGE("wing STEP shell C: " << a.stats_.dump());
   CHECK(mftest::read_text(a.artifact("shell").path) == mftest::read_text(b.artifact("shell").path));
   CHECK(a.stats_.at("faces_unsampled").get<long>() == 0);
-  // 35 crossing pairs before the directions were blended along the face (uv path) as rotations;
-  // the 10 left are chord triangles of the narrow tip face at its trailing-edge corner and a fold
-  // near the pole of the round tip (open: see the report of h/shell)
+  // 35 crossing pairs before the directions were blended along the face (uv path) as rotations,
+  // 11 before the sampled faces kept their CDT triangles by nesting depth (zero-area triangles of
+  // one edge's stations outside the loop, at the root of the trailing-edge face and at the tip's
+  // trailing edge, had been kept); the fold near the leading edge of the round tip is thinned
   long pairs = a.stats_.at("self_intersections").get<long>();
-  CHECK(pairs <= 11);
-  WARN(pairs == 0);
+  // (crossing_rounds, default 8: 9 pairs there before thinning, see the crossing_rounds 0 run below)
+  CHECK(pairs == 0);
   CHECK(a.stats_.at("sampling_refined_faces").is_array());
   auto cs = meshflow::cad::Shape::load(shape.path);
   auto sym = cs.faces_with_tag(meshflow::cad::Tag::symmetry);
@@ -358,37 +365,36 @@ TEST_CASE("shell on the wing STEP: junction blocks at the root (C) and none (O),
   sh::ShellData dO = sh::read(o.artifact("shell").path);
   CHECK(count_kind(dO, "hex_junction") == 0);
   CHECK(o.stats_.at("counts").at("junction_edges").get<long>() == 0);
-  CHECK(o.stats_.at("self_intersections").get<long>() <= 11);
-  // crossing_rounds: the shell is thinned where its sampled surface crosses (11 -> 1 pair: the
-  // one left is the tip face's own shell, same_face 7-7), only there, deterministically
-  TestContext t1("shell", {{"crossing_rounds", 8}}, {shape, medial}), t2("shell", {{"crossing_rounds", 8}}, {shape, medial});
-  t1.run();
-  t2.run();
-  CHECK(mftest::read_text(t1.artifact("shell").path) == mftest::read_text(t2.artifact("shell").path));
-  long thin_pairs = t1.stats_.at("self_intersections").get<long>();
-  MESSAGE("wing STEP shell, crossing_rounds 8: " << thin_pairs << " crossing pairs (" << pairs << " without), "
-                                                 << t1.stats_.at("not_honoured").dump());
-  CHECK(thin_pairs < pairs);
-  CHECK(thin_pairs <= 1);
-  REQUIRE(t1.stats_.at("not_honoured").contains("thinned_for_crossings"));
-  const auto& tc = t1.stats_.at("not_honoured").at("thinned_for_crossings");
+  CHECK(o.stats_.at("self_intersections").get<long>() == 0);
+  // crossing_rounds 0: no thinning; the fold at the round tip's leading edge stays (its two edges
+  // are blended towards the leading-edge vertex over 2 thicknesses, up to 47 degrees off their
+  // normals); the default run thinned only there, deterministically
+  TestContext t0("shell", {{"crossing_rounds", 0}}, {shape, medial});
+  t0.run();
+  long raw_pairs = t0.stats_.at("self_intersections").get<long>();
+  MESSAGE("wing STEP shell: " << raw_pairs << " crossing pairs without thinning, " << pairs << " with: "
+                              << a.stats_.at("not_honoured").dump());
+  CHECK(raw_pairs > 0);
+  CHECK(raw_pairs <= 9);
+  CHECK_FALSE(t0.stats_.at("not_honoured").contains("thinned_for_crossings"));
+  REQUIRE(a.stats_.at("not_honoured").contains("thinned_for_crossings"));
+  const auto& tc = a.stats_.at("not_honoured").at("thinned_for_crossings");
   CHECK(tc.at("rounds").get<int>() >= 1);
-  CHECK(tc.at("crossings_before").get<long>() == pairs);
+  CHECK(tc.at("crossings_before").get<long>() == raw_pairs);
   CHECK(tc.at("min_scale").get<double>() >= 0.2 - 1e-9);
-  CHECK(t1.stats_.at("min_clearance").at("walls_over_thickness").get<double>() >=
-        0.5 * a.stats_.at("min_clearance").at("walls_over_thickness").get<double>());
-  CHECK_FALSE(a.stats_.at("not_honoured").contains("thinned_for_crossings"));
-  // thinner somewhere, never thicker: the same wall points (the sampled surface keeps its
-  // topology where nothing is thinned), offsets no longer than without
-  sh::ShellData dt = sh::read(t1.artifact("shell").path);
-  double tmin_a = INFINITY, tmin_t = INFINITY;
+  CHECK(a.stats_.at("min_clearance").at("walls_over_thickness").get<double>() >=
+        0.5 * t0.stats_.at("min_clearance").at("walls_over_thickness").get<double>());
+  // thinner somewhere, never below the floor
+  sh::ShellData d0 = sh::read(t0.artifact("shell").path);
+  double tmin_a = INFINITY, tmin_0 = INFINITY;
   for (std::size_t i = 0; i < d.shell_points.size(); ++i) {
     auto& w = d.shell_wall[i];
     tmin_a = std::min(tmin_a, std::hypot(d.shell_points[i][0] - w[0], d.shell_points[i][1] - w[1], d.shell_points[i][2] - w[2]));
   }
-  for (std::size_t i = 0; i < dt.shell_points.size(); ++i) {
-    auto& w = dt.shell_wall[i];
-    tmin_t = std::min(tmin_t, std::hypot(dt.shell_points[i][0] - w[0], dt.shell_points[i][1] - w[1], dt.shell_points[i][2] - w[2]));
+  for (std::size_t i = 0; i < d0.shell_points.size(); ++i) {
+    auto& w = d0.shell_wall[i];
+    tmin_0 = std::min(tmin_0, std::hypot(d0.shell_points[i][0] - w[0], d0.shell_points[i][1] - w[1], d0.shell_points[i][2] - w[2]));
   }
-  CHECK(tmin_t < tmin_a);
+  CHECK(tmin_a < tmin_0);
+  CHECK(tmin_a >= 0.19 * tmin_0);
 }
