@@ -14,7 +14,12 @@
 //   - per wall face: a regular nu × nv grid over the face's (u,v) bounds (face_uv_bounds),
 //     nodes outside the trimmed face included (the surface is evaluated on its natural
 //     extension); values t and d at the nodes; interpolation: bilinear in (u,v) for t and for
-//     the three components of d, then d normalised;
+//     the three components of d, then d normalised (ShellData::face_field). Sweep corrects
+//     this for the grid's resolution (sweep.cpp, Builder::face_field: (u,v) of a periodic face
+//     taken in the grid's period; where the fluid normal turns by more than 30 degrees within a
+//     cell, the deviation of d from the exact normal interpolated instead of d), and the shell
+//     stage evaluates its grids the same way for the junction corners PC and the sampled
+//     surface, so that both are the shell sweep builds;
 //   - per wall edge: n stations uniform in the edge parameter over edge_range; linear
 //     interpolation in t (the parameter), d normalised;
 //   - per wall vertex: one value.
@@ -97,6 +102,11 @@
 // block there) gets no block of its own at that end: sweep replaces the third face's prisms at
 // the vertex by an end cap of tets and pyramids closing onto the hex's end face (sweep.hpp,
 // "Junction ends on a third face"), from these fields as they are.
+// Strip boundary on a wrapped face round which a junction edge closes through its own vertex,
+// on the face's seam (Rotor 67's blade root and tip): the edge's p-curve offset across itself
+// by each station's (u,v) offset (its component along the p-curve dropped), as sweep builds it
+// (sweep.cpp, "Strip boundaries next to a seam"), not the plain projection, which folds round a
+// nose thinner than the strip; the seam's stations inside the strip are not sampled.
 // Sweep of a junction face strip: wall nodes on "j<e>a" map to the corner curve PC
 // (interpolated linearly in the edge parameter between stations), not to the face field.
 //

@@ -440,12 +440,18 @@ struct Stage {
   // t(S) + kCrossingGradient g |x - S|, S the wall point whose thickness sets the point's offset
   // (for a strip corner PC: its junction station P0, whose thickness is the strip's width): a
   // Lipschitz dimple a few thicknesses wide, no step. The fields and the sampled surface are
-  // then built again, up to crossing_rounds times, never below kCrossingFloor x the thickness
-  // without these constraints; the round with the fewest crossings is kept, and a round that
-  // brings the shell nearer to a wall than kCrossingClearance x the unthinned
+  // then built again, up to crossing_rounds times (default 8), never below kCrossingFloor x the
+  // thickness without these constraints; the round with the fewest crossings is kept, and a
+  // round that brings the shell nearer to a wall than kCrossingClearance x the unthinned
   // walls_over_thickness is not (a dimple beside a junction corner can turn a strip's corner
-  // onto the other face: DLR-F6's wing-pylon corner). Off by default: it changes the fields, so
-  // the near-field mesh, wherever it acts. Pairs that survive are reported (self_intersections).
+  // onto the other face: DLR-F6's wing-pylon corner). It changes the fields, so the near-field
+  // mesh, wherever it acts. Pairs that survive are reported (self_intersections).
+  // (Rotor 67: 38 pairs at first while the corners PC on the hub's negative-angle side were
+  // evaluated in the wrong period and the blade's strips folded round the seam, see grid_at and
+  // closed_round_seam; 2 since, cleared by one round: chord triangles where the blade's and the
+  // hub's shells leave the root's corner curve at a narrow angle (fluid angle ~65 degrees, x ~0.03)
+  // and one at the tip's leading edge, where the casing's field beside the strip is thicker than
+  // the edge's thickness at the vertex.)
   static constexpr double kCrossingScale = 0.75, kCrossingFloor = 0.2;
   int max_crossing_rounds = 0;  // parameter crossing_rounds (0: off)
   static constexpr double kCrossingClearance = 0.5;  // x the unthinned walls_over_thickness
@@ -758,10 +764,55 @@ struct Stage {
     }
   }
 
+  // The face field at (u,v) as sweep evaluates it (sweep.cpp, Builder::face_field), so that the
+  // sampled surface and the junction corners PC are the shell sweep builds:
+  //  - (u,v) of a periodic face taken in the grid's period: a projection onto the hub (u an
+  //    angle) returns u in [0, 2 pi) while the grid spans [-0.14, 0.37]; the reader's clamping
+  //    then gave every such point the grid's last column (Rotor 67: the root strip's corner PC on
+  //    the blade's negative-angle side, 0.01 off its place, folded into the hub's and blade's
+  //    shells: the junction crossings at the hub);
+  //  - where the exact fluid normal turns by more than 30 degrees between the cell's corners and
+  //    (u,v) (a leading or trailing edge far thinner than a grid cell) the deviation of d from
+  //    the normal is interpolated, not d itself (bilinear d is a mean of both sides of the nose,
+  //    nearly tangent to the wall there). The thickness is the grid's.
   std::pair<double, Vec3> grid_at(int f, double u, double v) const {
+    const FaceGrid& g = grids.at(f);
+    auto per = shape.face_periods(f);
+    const double lo[2] = {g.u0, g.v0}, hi[2] = {g.u1, g.v1};
+    double* x[2] = {&u, &v};
+    for (int c = 0; c < 2; ++c)
+      if (per[c] > 0 && (*x[c] < lo[c] || *x[c] > hi[c])) {
+        double mid = 0.5 * (lo[c] + hi[c]);
+        *x[c] -= per[c] * std::round((*x[c] - mid) / per[c]);
+      }
     ShellData tmp;  // reuse the reader's interpolation on one grid
-    tmp.faces.push_back(grids.at(f));
-    return tmp.face_field(f, u, v);
+    tmp.faces.push_back(g);
+    auto td = tmp.face_field(f, u, v);
+    if (g.nu < 2 || g.nv < 2 || !(g.u1 > g.u0) || !(g.v1 > g.v0)) return td;
+    Vec3 nx = mul(v3(shape.face_normal(f, u, v)), -1.0);
+    if (norm(nx) < 0.5) return td;  // a pole: the grid's direction
+    double xi = std::clamp((u - g.u0) / (g.u1 - g.u0) * (g.nu - 1), 0.0, double(g.nu - 1));
+    double yj = std::clamp((v - g.v0) / (g.v1 - g.v0) * (g.nv - 1), 0.0, double(g.nv - 1));
+    int i = std::min(int(xi), g.nu - 2), j = std::min(int(yj), g.nv - 2);
+    double a = xi - i, b = yj - j;
+    Vec3 dev{0, 0, 0};
+    double min_dot = 1;
+    for (int dj = 0; dj < 2; ++dj)
+      for (int di = 0; di < 2; ++di) {
+        int ii = i + di, jj = j + dj;
+        double w = (di ? a : 1 - a) * (dj ? b : 1 - b);
+        double uc = g.u0 + (g.u1 - g.u0) * ii / (g.nu - 1), vc = g.v0 + (g.v1 - g.v0) * jj / (g.nv - 1);
+        Vec3 nc = mul(v3(shape.face_normal(f, uc, vc)), -1.0);
+        if (norm(nc) < 0.5) return td;  // a pole at a corner: the grid's direction
+        min_dot = std::min(min_dot, dot(nc, nx));
+        const double* p = &g.data[(std::size_t(jj) * g.nu + ii) * 4];
+        dev = add(dev, mul(sub(Vec3{p[1], p[2], p[3]}, nc), w));
+      }
+    if (min_dot > std::cos(30 * M_PI / 180)) return td;
+    Vec3 d = add(nx, dev);
+    double l = norm(d);
+    if (!(l > 0.5)) return td;  // the deviation undoes the normal: keep the grid's direction
+    return {td.first, mul(d, 1.0 / l)};
   }
 
   // A junction block's cross-section at station k of edge e: PA on A and PB on B at the
@@ -772,6 +823,61 @@ struct Stage {
     std::array<double, 2> uvA, uvB;
   };
   std::map<std::pair<int, int>, StripStation> strip_memo;
+  // A closed junction edge round a wrapped face X (both ends at one vertex on a seam of X:
+  // Rotor 67's blade root and tip, the blade's seam up its leading edge). The leading and
+  // trailing edges are far thinner than a strip width and the blade leans: the stations near the
+  // nose, offset in 3D along m_X and projected, land on either side of the seam in scrambled
+  // order (the root's PB: u 0.0006, 0.0011, 0.0002, 0.9984 for the first four stations), the
+  // strip boundary folds in (u,v), the face's loop is trimmed there and the sampled shell
+  // leaves the nose's corner points out (the crossings round the root's leading edge), and the
+  // corner PC of the tip (PA on the blade) is the field at a folded PA. As sweep does
+  // (sweep.cpp, build_junction_curves: "Strip boundaries next to a seam", L infinite), the strip
+  // boundary on X is then the edge's p-curve offset across itself by the station's own offset
+  // (the projection's (u,v) offset without its component along the p-curve), monotone along the
+  // edge like the edge itself.
+  bool closed_round_seam(int e, int X) const {
+    const EdgeInfo& I = E[e];
+    if (I.v0 < 0 || I.v0 != I.v1) return false;
+    for (int s : face_edges_cache[X])
+      if (shape.edge_is_seam(s, X)) {
+        auto vs = shape.edge_vertices(s);
+        if (vs[0] == I.v0 || vs[1] == I.v0) return true;
+      }
+    return false;
+  }
+  // A station of a seam of X closer to the vertex than the end of a closed junction's strip
+  // boundary there (see closed_round_seam): that end lies on the seam, one strip width up it, and
+  // the seam's stations below it are inside the strip, whose image is the junction hex, not
+  // shell (as sweep cuts the seam at the end's corner). Kept in the loop they made a spike down
+  // the seam and back whose triangles crossed the hub's shell round the nose (Rotor 67's root).
+  bool in_seam_strip(int X, int seam, const Vec3& p) {
+    if (!shape.edge_is_seam(seam, X)) return false;
+    auto vs = shape.edge_vertices(seam);
+    for (int je : face_edges_cache[X]) {
+      const EdgeInfo& J = E[je];
+      if (!(J.junction && J.kind == EdgeKind::wall_wall) || J.t.empty() || !closed_round_seam(je, X)) continue;
+      if (vs[0] != J.v0 && vs[1] != J.v0) continue;
+      StripStation q = strip_station(je, 0);
+      const Vec3& Q = X == J.a ? q.PA : q.PB;
+      if (norm(sub(p, J.p.front())) < norm(sub(Q, J.p.front()))) return true;
+    }
+    return false;
+  }
+  std::array<double, 2> across_pcurve(int e, int X, double t, std::array<double, 2> uv) const {
+    auto eu = shape.edge_uv(e, X, t, false);
+    auto per = shape.face_periods(X);
+    const double target[2] = {eu.u, eu.v};
+    for (int c = 0; c < 2; ++c)
+      if (per[c] > 0) uv[c] += per[c] * std::round((target[c] - uv[c]) / per[c]);
+    auto r = shape.edge_range(e);
+    double dt = 1e-4 * (r.hi - r.lo);
+    auto e1 = shape.edge_uv(e, X, t + dt, false), e0 = shape.edge_uv(e, X, t - dt, false);
+    double tu = e1.u - e0.u, tv = e1.v - e0.v, tl = std::hypot(tu, tv);
+    if (!(tl > 0)) return uv;
+    double nu = -tv / tl, nv = tu / tl;
+    double off = (uv[0] - eu.u) * nu + (uv[1] - eu.v) * nv;
+    return {eu.u + off * nu, eu.v + off * nv};
+  }
   StripStation strip_station(int e, int k) {
     auto key = std::make_pair(e, k);
     auto it = strip_memo.find(key);
@@ -781,6 +887,12 @@ struct Stage {
     Vec3 P0 = I.p[k];
     auto pa = shape.project_to_face(I.a, cv(add(P0, mul(I.ma[k], w))), I.uv[k].at(I.a));
     auto pb = shape.project_to_face(I.b, cv(add(P0, mul(I.mb[k], w))), I.uv[k].at(I.b));
+    for (auto [X, pr] : {std::pair{I.a, &pa}, std::pair{I.b, &pb}})
+      if (closed_round_seam(e, X)) {
+        auto uv = across_pcurve(e, X, I.t[k], {pr->u, pr->v});
+        pr->u = uv[0], pr->v = uv[1];
+        pr->point = shape.face_point(X, uv[0], uv[1]);
+      }
     auto [ta, da] = grid_at(I.a, pa.u, pa.v);
     StripStation q;
     q.PA = v3(pa.point), q.PB = v3(pb.point);
@@ -1068,6 +1180,7 @@ struct Stage {
           int n = static_cast<int>(I.t.size());
           for (int s = skip_first ? 1 : 0; s < n - 1; ++s) {
             int k = eu.reversed ? n - 1 - s : s;
+            if (use_strips && in_seam_strip(f, e, I.p[k])) continue;
             cad::Vec2 q = shape.edge_uv(e, f, I.t[k], eu.reversed);
             piece.push_back({q.u, q.v});
             gid.push_back(station_id(e, k, f));
