@@ -489,6 +489,7 @@ struct Stage {
     out = ShellData{};
     point_faces.clear();
     point_source.clear();
+    welded_points = 0;
     strip_fallback.clear();
     refined_faces.clear();
     faces_unsampled = 0;
@@ -1385,6 +1386,43 @@ struct Stage {
             }
         }
     }
+    weld_duplicates();
+  }
+
+  // Points made twice with the same wall and shell position (a junction's strip corner reached
+  // from two edges' stations at a vertex: DLR-F6's fuselage-wing fillet corner) are one point:
+  // triangles are renumbered to the first of them, so that neighbours sharing the position also
+  // share the index (the crossing check skips pairs sharing a vertex; touching at a duplicated
+  // vertex would count as a crossing). Triangles that become degenerate are dropped.
+  long welded_points = 0;
+  void weld_duplicates() {
+    // the same position up to rounding (two evaluations of one strip corner differ by ~1e-11)
+    const double tol = 1e-9 * Lref;
+    std::vector<int> to(out.shell_points.size());
+    if (to.empty()) return;
+    std::vector<medial::Vec3> wp(out.shell_wall.begin(), out.shell_wall.end());
+    medial::NearestIndex idx(wp);
+    for (std::size_t i = 0; i < to.size(); ++i) {
+      to[i] = static_cast<int>(i);
+      for (auto [j, d] : idx.nearest(out.shell_wall[i], 8)) {
+        if (d > tol) break;
+        if (j < static_cast<int>(i) && norm(sub(out.shell_points[j], out.shell_points[i])) <= tol) {
+          to[i] = to[j];
+          ++welded_points;
+          break;
+        }
+      }
+    }
+    if (welded_points == 0) return;
+    std::vector<std::array<std::int32_t, 3>> tris;
+    std::vector<std::int32_t> tf;
+    for (std::size_t t = 0; t < out.shell_tris.size(); ++t) {
+      auto g = out.shell_tris[t];
+      for (auto& x : g) x = to[x];
+      if (g[0] == g[1] || g[1] == g[2] || g[0] == g[2]) continue;
+      tris.push_back(g), tf.push_back(out.shell_tri_face[t]);
+    }
+    out.shell_tris.swap(tris), out.shell_tri_face.swap(tf);
   }
 
   // ── 5b. clearance of the sampled shell to the walls (nearest wall sample, refined by
@@ -1671,6 +1709,7 @@ struct Stage {
     if (std::isfinite(clear_far)) stats["min_clearance"]["farfield_at"] = at_far;
     stats["faces_unsampled"] = faces_unsampled;
     rundiag["junction_strip_fallback_faces"] = strip_fallback;
+    rundiag["welded_points"] = welded_points;
     {
       nlohmann::json rf = nlohmann::json::array();
       for (auto [f, a, b] : refined_faces) rf.push_back({f, a, b});
