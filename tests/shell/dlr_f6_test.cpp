@@ -1,6 +1,8 @@
 // workflows/wing_body.yaml (the DLR-F6 BREP) through medial, shell and balance: a ratchet on
 // the crossing pairs of the sampled shell (triangle-triangle self-intersections). Measured with
-// this version: 67 at the workflow's 2.4 mm (0.002 x fuselage length; 80 before junction strips
+// this version: 1 at the workflow's 2.4 mm (52 before the default thinning of crossings, 64 before
+// the corner points of two edges were welded and Rotor 67's field-evaluation fixes, 67 before the
+// sampled surface was refined on curved faces; 0.002 x fuselage length; 80 before junction strips
 // were limited by the width of their faces, which keeps the strip of the nacelle's 0.7 mm base
 // ring; 3,350 before the junction strips were left out of the sampled shell), 181 at the default
 // 60 mm (5,158 before; not re-measured).
@@ -30,7 +32,7 @@
 TEST_CASE("wing_body.yaml (DLR-F6): medial, shell and balance run, shell crossings ratchet, sweep meshes every face") {
   namespace fs = std::filesystem;
   if (!fs::exists(fs::path(MESHFLOW_DATA_DIR) / "dlr_f6/dlr_f6.brep")) return;
-  constexpr long kMaxCrossings = 64;
+  constexpr long kMaxCrossings = 1;
   fs::path dir = mftest::temp_dir("shell-dlr-f6");
   std::string text = mftest::read_text(fs::path(MESHFLOW_SOURCE_DIR) / "workflows/wing_body.yaml");
   auto replace = [&](const std::string& from, const std::string& to) {
@@ -49,9 +51,11 @@ TEST_CASE("wing_body.yaml (DLR-F6): medial, shell and balance run, shell crossin
   // (no longer at the collapsed prism on face 6: the pylon-nose corner of the junction along edge
   // 7 is a face node beside the obtuse side edge). Ratchet: at most kMaxInverted prisms stay
   // inverted after untangling (6 until untangling stopped smoothing valid neighbours into the
-  // tangle; 4 since: 2 on the nacelle, face 0, and 2 on the pylon, face 53; 3 since balance
-  // gives edges along narrow faces a minimum of divisions: 1 on the nacelle, 2 on the pylon).
-  constexpr long kMaxInverted = 3;
+  // tangle; 4 since: 2 on the nacelle, face 0, and 2 on the pylon, face 53; 3 when balance
+  // gave edges along narrow faces a minimum of divisions: 1 on the nacelle, 2 on the pylon; 4
+  // since the shell is thinned where its sampled surface crossed (52 pairs -> 1): one more on the
+  // pylon's leading-edge face 6, which untangling cleared before).
+  constexpr long kMaxInverted = 4;
   auto inverted_after = [](const std::string& out) {
     std::smatch mt;
     REQUIRE(std::regex_search(out, mt, std::regex("sweep: (\\d+) of (\\d+) prisms stay inverted after untangling the layer")));
