@@ -133,6 +133,10 @@
 
 #include <nlohmann/json_fwd.hpp>
 
+namespace meshflow::cad {
+class Shape;
+}
+
 namespace meshflow::shell {
 
 using Vec3 = std::array<double, 3>;
@@ -173,6 +177,19 @@ struct ShellData {
   std::pair<double, Vec3> edge_field(int edge, double t, int face = -1) const;
   nlohmann::json summary() const;
 };
+
+// One face grid at (u,v): bilinear in t and d, d normalised ((u,v) clamped to the grid's box).
+std::pair<double, Vec3> grid_field(const FaceGrid& g, double u, double v);
+// The same field as sweep builds the shell from it (and the shell stage samples it): (u,v) of a
+// periodic face first taken in the grid's period (a projection onto a hub returns an angle in
+// [0, 2 pi) where the grid may span [-0.14, 0.37]); and where the exact fluid normal
+// (-face_normal) turns by more than 30 degrees between the cell's corners and (u,v) (a leading or
+// trailing edge far thinner than a grid cell: Rotor 67's blade, radius ~1e-3 ft inside one cell
+// of its grid) the deviation of d from the normal is interpolated, not d itself:
+// d = normalise(n(x) + sum_c w_c (d_c - n_c)); bilinear d would be a mean of the normals on both
+// sides of the nose, nearly tangent to the wall. Elsewhere, at poles and where the deviation
+// undoes the normal: grid_field's direction. The thickness is always grid_field's.
+std::pair<double, Vec3> grid_field_on(const FaceGrid& g, const cad::Shape& shape, double u, double v);
 
 void write(const ShellData& s, const std::filesystem::path& file);
 // Throws meshflow::StageError naming the file when missing, truncated or not a shell artifact.

@@ -1,8 +1,10 @@
 // meshflow shell — the "shell" artifact: writer, reader, field evaluation, summary, artifact
-// type. Format: see shell.hpp. No CGAL, no OCCT.
+// type. Format: see shell.hpp. No CGAL, no OCCT (the CAD through stages/cad/cad.hpp).
 #include "engine/artifact_type.hpp"
 #include "engine/stage.hpp"
 #include "stages/shell/shell.hpp"
+#include "stages/cad/cad.hpp"
+#include "stages/cad/vec3.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -161,25 +163,67 @@ ShellData read(const std::filesystem::path& file) {
   return d;
 }
 
+std::pair<double, Vec3> grid_field(const FaceGrid& g, double u, double v) {
+  double x = g.nu > 1 && g.u1 > g.u0 ? (u - g.u0) / (g.u1 - g.u0) * (g.nu - 1) : 0;
+  double y = g.nv > 1 && g.v1 > g.v0 ? (v - g.v0) / (g.v1 - g.v0) * (g.nv - 1) : 0;
+  x = std::clamp(x, 0.0, double(g.nu - 1));
+  y = std::clamp(y, 0.0, double(g.nv - 1));
+  int i = std::min(int(x), std::max(g.nu - 2, 0)), j = std::min(int(y), std::max(g.nv - 2, 0));
+  double a = x - i, b = y - j;
+  double r[4] = {0, 0, 0, 0};
+  for (int dj = 0; dj < 2; ++dj)
+    for (int di = 0; di < 2; ++di) {
+      int ii = std::min(i + di, g.nu - 1), jj = std::min(j + dj, g.nv - 1);
+      double w = (di ? a : 1 - a) * (dj ? b : 1 - b);
+      const double* p = &g.data[(std::size_t(jj) * g.nu + ii) * 4];
+      for (int k = 0; k < 4; ++k) r[k] += w * p[k];
+    }
+  return {r[0], normed(r[1], r[2], r[3])};
+}
+
+std::pair<double, Vec3> grid_field_on(const FaceGrid& g, const cad::Shape& shape, double u, double v) {
+  using namespace cad::vec;
+  auto per = shape.face_periods(g.face);
+  const double lo[2] = {g.u0, g.v0}, hi[2] = {g.u1, g.v1};
+  double* x[2] = {&u, &v};
+  for (int c = 0; c < 2; ++c)
+    if (per[c] > 0 && (*x[c] < lo[c] || *x[c] > hi[c])) {
+      double mid = 0.5 * (lo[c] + hi[c]);
+      *x[c] -= per[c] * std::round((*x[c] - mid) / per[c]);
+    }
+  auto td = grid_field(g, u, v);
+  if (g.nu < 2 || g.nv < 2 || !(g.u1 > g.u0) || !(g.v1 > g.v0)) return td;
+  V3 nx = mul(v3(shape.face_normal(g.face, u, v)), -1.0);
+  if (norm(nx) < 0.5) return td;  // a pole: the grid's direction
+  double xi = std::clamp((u - g.u0) / (g.u1 - g.u0) * (g.nu - 1), 0.0, double(g.nu - 1));
+  double yj = std::clamp((v - g.v0) / (g.v1 - g.v0) * (g.nv - 1), 0.0, double(g.nv - 1));
+  int i = std::min(int(xi), g.nu - 2), j = std::min(int(yj), g.nv - 2);
+  double a = xi - i, b = yj - j;
+  V3 dev{0, 0, 0};
+  double min_dot = 1;  // the largest turn of the normal between the cell's corners and x
+  for (int dj = 0; dj < 2; ++dj)
+    for (int di = 0; di < 2; ++di) {
+      int ii = i + di, jj = j + dj;
+      double w = (di ? a : 1 - a) * (dj ? b : 1 - b);
+      double uc = g.u0 + (g.u1 - g.u0) * ii / (g.nu - 1), vc = g.v0 + (g.v1 - g.v0) * jj / (g.nv - 1);
+      V3 nc = mul(v3(shape.face_normal(g.face, uc, vc)), -1.0);
+      if (norm(nc) < 0.5) return td;  // a pole at a corner: the grid's direction
+      min_dot = std::min(min_dot, dot(nc, nx));
+      const double* p = &g.data[(std::size_t(jj) * g.nu + ii) * 4];
+      dev = add(dev, mul(sub(V3{p[1], p[2], p[3]}, nc), w));
+    }
+  // where the normal turns by less than 30 degrees across the cell the grid resolves it: its
+  // own interpolation is kept (and the meshes of such faces are unchanged by this correction)
+  if (min_dot > std::cos(30 * M_PI / 180)) return td;
+  V3 d = add(nx, dev);
+  double l = norm(d);
+  if (!(l > 0.5)) return td;  // the deviation undoes the normal: keep the grid's direction
+  return {td.first, mul(d, 1.0 / l)};
+}
+
 std::pair<double, Vec3> ShellData::face_field(int face, double u, double v) const {
-  for (auto& g : faces) {
-    if (g.face != face) continue;
-    double x = g.nu > 1 && g.u1 > g.u0 ? (u - g.u0) / (g.u1 - g.u0) * (g.nu - 1) : 0;
-    double y = g.nv > 1 && g.v1 > g.v0 ? (v - g.v0) / (g.v1 - g.v0) * (g.nv - 1) : 0;
-    x = std::clamp(x, 0.0, double(g.nu - 1));
-    y = std::clamp(y, 0.0, double(g.nv - 1));
-    int i = std::min(int(x), std::max(g.nu - 2, 0)), j = std::min(int(y), std::max(g.nv - 2, 0));
-    double a = x - i, b = y - j;
-    double r[4] = {0, 0, 0, 0};
-    for (int dj = 0; dj < 2; ++dj)
-      for (int di = 0; di < 2; ++di) {
-        int ii = std::min(i + di, g.nu - 1), jj = std::min(j + dj, g.nv - 1);
-        double w = (di ? a : 1 - a) * (dj ? b : 1 - b);
-        const double* p = &g.data[(std::size_t(jj) * g.nu + ii) * 4];
-        for (int k = 0; k < 4; ++k) r[k] += w * p[k];
-      }
-    return {r[0], normed(r[1], r[2], r[3])};
-  }
+  for (auto& g : faces)
+    if (g.face == face) return grid_field(g, u, v);
   throw std::out_of_range("shell: no field grid for face " + std::to_string(face));
 }
 

@@ -765,56 +765,12 @@ struct Stage {
     }
   }
 
-  // The face field at (u,v) as sweep evaluates it (sweep.cpp, Builder::face_field), so that the
-  // sampled surface and the junction corners PC are the shell sweep builds:
-  //  - (u,v) of a periodic face taken in the grid's period: a projection onto the hub (u an
-  //    angle) returns u in [0, 2 pi) while the grid spans [-0.14, 0.37]; the reader's clamping
-  //    then gave every such point the grid's last column (Rotor 67: the root strip's corner PC on
-  //    the blade's negative-angle side, 0.01 off its place, folded into the hub's and blade's
-  //    shells: the junction crossings at the hub);
-  //  - where the exact fluid normal turns by more than 30 degrees between the cell's corners and
-  //    (u,v) (a leading or trailing edge far thinner than a grid cell) the deviation of d from
-  //    the normal is interpolated, not d itself (bilinear d is a mean of both sides of the nose,
-  //    nearly tangent to the wall there). The thickness is the grid's.
-  std::pair<double, Vec3> grid_at(int f, double u, double v) const {
-    const FaceGrid& g = grids.at(f);
-    auto per = shape.face_periods(f);
-    const double lo[2] = {g.u0, g.v0}, hi[2] = {g.u1, g.v1};
-    double* x[2] = {&u, &v};
-    for (int c = 0; c < 2; ++c)
-      if (per[c] > 0 && (*x[c] < lo[c] || *x[c] > hi[c])) {
-        double mid = 0.5 * (lo[c] + hi[c]);
-        *x[c] -= per[c] * std::round((*x[c] - mid) / per[c]);
-      }
-    ShellData tmp;  // reuse the reader's interpolation on one grid
-    tmp.faces.push_back(g);
-    auto td = tmp.face_field(f, u, v);
-    if (g.nu < 2 || g.nv < 2 || !(g.u1 > g.u0) || !(g.v1 > g.v0)) return td;
-    Vec3 nx = mul(v3(shape.face_normal(f, u, v)), -1.0);
-    if (norm(nx) < 0.5) return td;  // a pole: the grid's direction
-    double xi = std::clamp((u - g.u0) / (g.u1 - g.u0) * (g.nu - 1), 0.0, double(g.nu - 1));
-    double yj = std::clamp((v - g.v0) / (g.v1 - g.v0) * (g.nv - 1), 0.0, double(g.nv - 1));
-    int i = std::min(int(xi), g.nu - 2), j = std::min(int(yj), g.nv - 2);
-    double a = xi - i, b = yj - j;
-    Vec3 dev{0, 0, 0};
-    double min_dot = 1;
-    for (int dj = 0; dj < 2; ++dj)
-      for (int di = 0; di < 2; ++di) {
-        int ii = i + di, jj = j + dj;
-        double w = (di ? a : 1 - a) * (dj ? b : 1 - b);
-        double uc = g.u0 + (g.u1 - g.u0) * ii / (g.nu - 1), vc = g.v0 + (g.v1 - g.v0) * jj / (g.nv - 1);
-        Vec3 nc = mul(v3(shape.face_normal(f, uc, vc)), -1.0);
-        if (norm(nc) < 0.5) return td;  // a pole at a corner: the grid's direction
-        min_dot = std::min(min_dot, dot(nc, nx));
-        const double* p = &g.data[(std::size_t(jj) * g.nu + ii) * 4];
-        dev = add(dev, mul(sub(Vec3{p[1], p[2], p[3]}, nc), w));
-      }
-    if (min_dot > std::cos(30 * M_PI / 180)) return td;
-    Vec3 d = add(nx, dev);
-    double l = norm(d);
-    if (!(l > 0.5)) return td;  // the deviation undoes the normal: keep the grid's direction
-    return {td.first, mul(d, 1.0 / l)};
-  }
+  // The face field at (u,v) as sweep evaluates it (shell::grid_field_on), so that the sampled
+  // surface and the junction corners PC are the shell sweep builds (Rotor 67: with the plain
+  // bilinear field, (u,v) on the hub outside the grid's period got the grid's last column and
+  // the root strip's corners PC on the blade's negative-angle side, 0.01 off their place, folded
+  // into the hub's and blade's shells: the junction crossings at the hub).
+  std::pair<double, Vec3> grid_at(int f, double u, double v) const { return grid_field_on(grids.at(f), shape, u, v); }
 
   // A junction block's cross-section at station k of edge e: PA on A and PB on B at the
   // edge's thickness w along m_A / m_B (projected on the faces), the outer corner PC = PA's

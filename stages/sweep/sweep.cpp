@@ -760,61 +760,14 @@ void Builder::build_slides() {
   }
 }
 
-// The shell's face field at (u,v), its direction corrected for the grid's resolution: the grid
-// (shell.hpp) holds d at its nodes and face_field interpolates d bilinearly, which is the fluid
-// normal only where the normal turns slowly across a grid cell. Where the face turns within a
-// cell (Rotor 67's blade: its leading and trailing edges, radius ~1e-3 ft, lie inside one cell
-// of the 56-column grid around the wrapped section) the interpolated direction is a mean of the
-// normals on both sides of the nose, nearly tangent to the wall, and the prisms there fold. So
-// the deviation of d from the exact fluid normal is interpolated instead:
-// d(x) = normalise(n(x) + sum_c w_c (d_c - n_c)) over the cell's corners c, n = the exact fluid
-// normal (-face_normal). Where the grid's d is the normal (away from edges) this is the exact
-// normal; near edges the blend towards the edge values is kept. Only where the normal turns by
-// more than 30 degrees between the cell's corners and x; elsewhere the grid's own
-// interpolation. The thickness is the grid's.
+// The shell's face field at (u,v), its direction corrected for the grid's resolution
+// (shell::grid_field_on: the grid's period, and the deviation from the exact normal interpolated
+// where the face turns within a cell, e.g. Rotor 67's blade noses); the shell stage samples the
+// same field.
 std::pair<double, shell::Vec3> Builder::face_field(int face, double u, double v) {
-  const shell::FaceGrid* g = nullptr;
   for (auto& fg : SH.faces)
-    if (fg.face == face) g = &fg;
-  if (g) {  // (u,v) of a periodic surface taken in the grid's period (a hub node at u = 2 pi - e, grid on [-0.14, 0.37])
-    auto per = S.face_periods(face);
-    double lo[2] = {g->u0, g->v0}, hi[2] = {g->u1, g->v1};
-    double* x[2] = {&u, &v};
-    for (int c = 0; c < 2; ++c)
-      if (per[c] > 0 && (*x[c] < lo[c] || *x[c] > hi[c])) {
-        double mid = 0.5 * (lo[c] + hi[c]);
-        *x[c] -= per[c] * std::round((*x[c] - mid) / per[c]);
-      }
-  }
-  auto td = SH.face_field(face, u, v);
-  if (!g || g->nu < 2 || g->nv < 2 || !(g->u1 > g->u0) || !(g->v1 > g->v0)) return td;
-  V3 nx = mul(v3(S.face_normal(face, u, v)), -1.0);
-  if (norm(nx) < 0.5) return td;  // a pole: the grid's direction
-  double x = std::clamp((u - g->u0) / (g->u1 - g->u0) * (g->nu - 1), 0.0, double(g->nu - 1));
-  double y = std::clamp((v - g->v0) / (g->v1 - g->v0) * (g->nv - 1), 0.0, double(g->nv - 1));
-  int i = std::min(int(x), g->nu - 2), j = std::min(int(y), g->nv - 2);
-  double a = x - i, b = y - j;
-  V3 dev{0, 0, 0};
-  double min_dot = 1;  // the largest turn of the normal between the cell's corners and x
-  for (int dj = 0; dj < 2; ++dj)
-    for (int di = 0; di < 2; ++di) {
-      int ii = i + di, jj = j + dj;
-      double w = (di ? a : 1 - a) * (dj ? b : 1 - b);
-      double uc = g->u0 + (g->u1 - g->u0) * ii / (g->nu - 1), vc = g->v0 + (g->v1 - g->v0) * jj / (g->nv - 1);
-      V3 nc = mul(v3(S.face_normal(face, uc, vc)), -1.0);
-      if (norm(nc) < 0.5) return td;  // a pole at a corner: the grid's direction
-      min_dot = std::min(min_dot, dot(nc, nx));
-      const double* p = &g->data[(std::size_t(jj) * g->nu + ii) * 4];
-      dev = add(dev, mul(sub(V3{p[1], p[2], p[3]}, nc), w));
-    }
-  // where the normal turns by less than 30 degrees across the cell the grid resolves it: its
-  // own interpolation is kept (and the meshes of such faces are unchanged by this correction)
-  if (min_dot > std::cos(30 * M_PI / 180)) return td;
-  V3 d = add(nx, dev);
-  double l = norm(d);
-  if (!(l > 0.5)) return td;  // the deviation undoes the normal: keep the grid's direction
-  d = mul(d, 1.0 / l);
-  return {td.first, shell::Vec3{d[0], d[1], d[2]}};
+    if (fg.face == face) return shell::grid_field_on(fg, S, u, v);
+  return SH.face_field(face, u, v);  // no grid: throws, naming the face
 }
 
 std::uint32_t Builder::shell_image(std::uint32_t n, int face) {
