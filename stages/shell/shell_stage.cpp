@@ -18,6 +18,7 @@
 #include <cmath>
 #include <map>
 #include <numeric>
+#include <optional>
 #include <queue>
 #include <set>
 #include <sstream>
@@ -1515,6 +1516,7 @@ struct Stage {
     double rel_first = 0;
     std::size_t best_limits = 0;
     int best_round = 0;
+    std::optional<Clearance> cl_last;  // of the surface built last, when the loop measured it
     for (bool final = false;;) {
       ctx.progress(0.25, crossing_rounds ? "edge fields (thinning round " + std::to_string(crossing_rounds) + ")" : "edge fields");
       edge_fields();
@@ -1523,10 +1525,12 @@ struct Stage {
       sample_surface();
       ctx.progress(0.85, "checks");
       inter = self_intersections(out.shell_points, out.shell_tris);
+      cl_last.reset();
       if (final) break;
       // a round must not bring the shell much nearer to a wall than the unthinned one was (a
       // dimple next to a junction corner can turn a strip's corner point onto the other face)
-      const double rel = inter.pairs > 0 || crossing_rounds > 0 ? clearance().rel_wall : 0;
+      if (inter.pairs > 0 || crossing_rounds > 0) cl_last = clearance();
+      const double rel = cl_last ? cl_last->rel_wall : 0;
       if (crossings_first < 0) crossings_first = inter.pairs, rel_first = rel;
       const bool admissible = crossing_rounds == 0 || rel >= kCrossingClearance * rel_first;
       if (admissible && (best_pairs < 0 || inter.pairs < best_pairs))
@@ -1562,7 +1566,7 @@ struct Stage {
     }
 
     // clearance of the shell points to the walls and to the far field
-    const Clearance cl = clearance();
+    const Clearance cl = cl_last ? *cl_last : clearance();
     const double clear_wall = cl.wall, clear_far = cl.far, rel_wall = cl.rel_wall;
     const Vec3 at_wall = cl.at_wall, at_far = cl.at_far;
     // honoured thickness
