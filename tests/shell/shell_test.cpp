@@ -28,6 +28,16 @@ namespace sh = meshflow::shell;
 
 namespace {
 
+// the shortest offset of a sampled shell point from its wall point
+double min_offset(const sh::ShellData& d) {
+  double t = INFINITY;
+  for (std::size_t i = 0; i < d.shell_points.size(); ++i) {
+    const auto &p = d.shell_points[i], &w = d.shell_wall[i];
+    t = std::min(t, std::hypot(p[0] - w[0], p[1] - w[1], p[2] - w[2]));
+  }
+  return t;
+}
+
 // geometry -> heal -> medial once per geometry variant; the contexts own the files
 struct Inputs {
   std::unique_ptr<TestContext> geo, heal, med;
@@ -386,15 +396,7 @@ TEST_CASE("shell on the wing STEP: junction blocks at the root (C) and none (O),
         0.5 * t0.stats_.at("min_clearance").at("walls_over_thickness").get<double>());
   // thinner somewhere, never below the floor
   sh::ShellData d0 = sh::read(t0.artifact("shell").path);
-  double tmin_a = INFINITY, tmin_0 = INFINITY;
-  for (std::size_t i = 0; i < d.shell_points.size(); ++i) {
-    auto& w = d.shell_wall[i];
-    tmin_a = std::min(tmin_a, std::hypot(d.shell_points[i][0] - w[0], d.shell_points[i][1] - w[1], d.shell_points[i][2] - w[2]));
-  }
-  for (std::size_t i = 0; i < d0.shell_points.size(); ++i) {
-    auto& w = d0.shell_wall[i];
-    tmin_0 = std::min(tmin_0, std::hypot(d0.shell_points[i][0] - w[0], d0.shell_points[i][1] - w[1], d0.shell_points[i][2] - w[2]));
-  }
+  const double tmin_a = min_offset(d), tmin_0 = min_offset(d0);
   CHECK(tmin_a < tmin_0);
   CHECK(tmin_a >= 0.19 * tmin_0);
 }
