@@ -541,6 +541,20 @@ void Curver::build_cad_info() {
       for (auto& p : I.periods) dup = dup || (std::abs(std::abs(p[0]) - std::abs(d[0])) < 1e-9 && std::abs(std::abs(p[1]) - std::abs(d[1])) < 1e-9);
       if (!dup) I.periods.push_back(d);
     }
+    // The surface's own periods, for a face without a seam edge whose parameter box still
+    // straddles the surface's seam (Rotor 67's hub and casing: a 2 pi / 22 sector of a surface
+    // of revolution whose seam runs through the passage). Its nodes' parameters then come in
+    // two representations, u near 0 and u near 2 pi, and interpolating between them goes the
+    // long way round the hub: the high-order nodes of those elements landed on the far side of
+    // the hub, on the CAD (distance 0) but 0.6 ft away.
+    const auto fp = S_.face_periods(f);
+    for (int k = 0; k < 2; ++k) {
+      if (!(fp[k] > 0) || I.periods.size() >= 2) continue;
+      UV d{k == 0 ? fp[0] : 0.0, k == 1 ? fp[1] : 0.0};
+      bool dup = false;
+      for (auto& p : I.periods) dup = dup || (std::abs(std::abs(p[0]) - d[0]) < 1e-9 && std::abs(std::abs(p[1]) - d[1]) < 1e-9);
+      if (!dup) I.periods.push_back(d);
+    }
   }
   for (auto& ent : in_.entities)
     if (ent.dim == 2 && ent.tag >= 1 && ent.tag <= nf) {

@@ -38,7 +38,7 @@ void run(StageContext& ctx) {
 }
 
 StageRegistrar reg({.kind = "curve",
-                    .version = 1,
+                    .version = 2,
                     .summary = "order-P mesh on the CAD, bottom-up: CAD curves, CAD surfaces in (u,v), the boundary layer following the curved wall, blended interiors",
                     .run = run});
 

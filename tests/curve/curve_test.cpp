@@ -277,3 +277,82 @@ TEST_CASE("curve: bad input is refused with a clear message") {
     }
   CHECK(msg(badt, 4).find("outside the edge's range") != std::string::npos);
 }
+
+// A face whose parameter range straddles its surface's seam but which has no seam edge (a half
+// cylinder, u in [-pi/2, pi/2]; Rotor 67's hub and casing sectors): node parameters may be given
+// in any period (the mesh contract), here u in [0, 2 pi) as a projection answers, so the nodes
+// on either side of u = 0 are a period apart in (u,v). Interpolating across without unwrapping
+// goes the long way round: the high-order nodes land on the far side of the cylinder, on the CAD.
+TEST_CASE("curve: a face straddling its surface's seam without a seam edge does not fold") {
+  auto S = half_cylinder_face(1.0, 1.0);
+  int f = -1;
+  for (int k = 0; k < S.num_faces(); ++k)
+    if (S.face_tag(k) == meshflow::cad::Tag::wall) f = k;
+  REQUIRE(f >= 0);
+  REQUIRE(std::abs(S.face_periods(f)[0] - 2 * kPi) < 1e-9);
+  for (int e : S.face_edges(f)) REQUIRE_FALSE(S.edge_is_seam(e, f));
+  // a (theta, z) grid on the wall, theta in [-pi/2, pi/2], classified by projection
+  const int na = 8, nb = 2;
+  model::Mesh m;
+  std::vector<std::uint32_t> id;
+  for (int j = 0; j <= nb; ++j)
+    for (int i = 0; i <= na; ++i) {
+      double th = -kPi / 2 + kPi * i / na;
+      id.push_back(m.add_node(std::cos(th), std::sin(th), double(j) / nb));
+    }
+  const std::size_t N = m.num_nodes();
+  m.node_entity_dim.assign(N, 2), m.node_entity_tag.assign(N, f + 1), m.node_u.assign(N, NAN), m.node_v.assign(N, NAN);
+  int below = 0, above = 0;
+  for (std::size_t n = 0; n < N; ++n) {
+    meshflow::cad::Vec3 p{m.x[n], m.y[n], m.z[n]};
+    bool done = false;
+    for (int v = 0; v < S.num_vertices() && !done; ++v) {
+      auto q = S.vertex_point(v);
+      if (std::hypot(q.x - p.x, q.y - p.y, q.z - p.z) < 1e-9) m.node_entity_dim[n] = 0, m.node_entity_tag[n] = v + 1, done = true;
+    }
+    for (int e : S.face_edges(f)) {
+      if (done) break;
+      auto pr = S.project_to_edge(e, p);
+      auto rr = S.edge_range(e);
+      for (double sh : {0.0, 2 * kPi, -2 * kPi})
+        if (pr.t + sh >= rr.lo - 1e-9 && pr.t + sh <= rr.hi + 1e-9) {
+          pr.t += sh;
+          break;
+        }
+      if (pr.distance < 1e-9 && pr.t >= rr.lo - 1e-9 && pr.t <= rr.hi + 1e-9)
+        m.node_entity_dim[n] = 1, m.node_entity_tag[n] = e + 1, m.node_u[n] = pr.t, done = true;
+    }
+    if (done) continue;
+    auto pr = S.project_to_face(f, p);
+    REQUIRE(pr.distance < 1e-9);
+    double u = std::fmod(pr.u, 2 * kPi);
+    if (u < 0) u += 2 * kPi;
+    (u < kPi ? below : above)++;
+    m.node_u[n] = u, m.node_v[n] = pr.v;
+  }
+  REQUIRE(below > 0);  // both representations occur
+  REQUIRE(above > 0);
+  for (int v = 0; v < S.num_vertices(); ++v) m.add_entity(0, v + 1);
+  for (int e = 0; e < S.num_edges(); ++e) m.add_entity(1, e + 1);
+  m.add_physical(2, 1, "wall");
+  for (int k = 0; k < S.num_faces(); ++k) m.add_entity(2, k + 1, k == f ? std::vector<int>{1} : std::vector<int>{});
+  auto& tri = m.block(model::Shape::Tri, 1, 2, f + 1);
+  for (int j = 0; j < nb; ++j)
+    for (int i = 0; i < na; ++i) {
+      auto a = id[j * (na + 1) + i], b = id[j * (na + 1) + i + 1], c = id[(j + 1) * (na + 1) + i + 1], d = id[(j + 1) * (na + 1) + i];
+      tri.add({a, b, c}), tri.add({a, c, d});
+    }
+  m.check();
+  for (int P : {2, 4}) {
+    INFO("P=" << P);
+    mc::Options o;
+    o.order = P;
+    mc::Report r;
+    auto out = mc::curve_mesh(m, S, o, r);
+    CHECK(r.fallback_projections == 0);
+    CHECK(r.max_distance_surface < 1e-7);
+    CHECK(worst_parameter_gap(out, S) < 1e-9);
+    // the chord of a pi/8 arc sags 0.02 of its length: a node a period away bulges by ~1
+    CHECK(worst_edge_bulge(out) < 0.05);
+  }
+}

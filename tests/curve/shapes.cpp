@@ -5,7 +5,11 @@
 
 #include "stages/cad/occt.hpp"
 
+#include <BRepBuilderAPI_MakeFace.hxx>
 #include <BRepAlgoAPI_Cut.hxx>
+#include <Geom_CylindricalSurface.hxx>
+#include <gp.hxx>
+#include <gp_Ax3.hxx>
 #include <BRepPrimAPI_MakeCylinder.hxx>
 #include <BRepPrimAPI_MakeSphere.hxx>
 
@@ -36,6 +40,14 @@ meshflow::cad::Shape cylinder_shell(double r1, double r2, double h) {
   TopoDS_Shape outer = BRepPrimAPI_MakeCylinder(r2, h).Shape();
   TopoDS_Shape inner = BRepPrimAPI_MakeCylinder(r1, h).Shape();
   return tagged(BRepAlgoAPI_Cut(outer, inner).Shape(), r1);
+}
+
+meshflow::cad::Shape half_cylinder_face(double r, double h) {
+  Handle(Geom_CylindricalSurface) cyl = new Geom_CylindricalSurface(gp_Ax3(gp::XOY()), r);
+  TopoDS_Shape face = BRepBuilderAPI_MakeFace(cyl, -M_PI / 2, M_PI / 2, 0.0, h, 1e-9).Shape();
+  auto S = meshflow::cad::occt::make_shape(face, "m");
+  S.set_face_tag(0, meshflow::cad::Tag::wall);
+  return S;
 }
 
 }  // namespace curvetest
