@@ -11,6 +11,7 @@ if [ -z "${RENDER_ONLY:-}" ]; then
   "$build/meshflow" run workflows/naca_wingtip.yaml
   "$build/meshflow" run workflows/wingtip_step.yaml
   "$build/meshflow" run workflows/wing_body_parametric.yaml
+  "$build/meshflow" run workflows/rotor67.yaml  # ~20 min on 2 cores, most of it optimise's untangling
 fi
 mkdir -p docs/img
 render() { /usr/bin/python3 scripts/render-cut.py "$@"; }
@@ -32,4 +33,12 @@ done
 render ${VTU_DIR:-out}/wing-body-parametric/mesh.vtu docs/img/wing_body_junction.png --point 27.3 0 0 --normal 1 0 0 \
   --box 27.1 27.3 2.86 3.38 -0.6 -0.2 --up 0 0 1 \
   --title "wing-body junction cut at x = 27.3: body left, wing below; order 4, 10 x 10 layers"
+# Rotor 67 (axis x, feet): cuts normal to the axis through the hub junction just behind the blade's
+# leading edge and through the casing junction at the tip, radius (y) up (absolute coordinates)
+render ${VTU_DIR:-out}/rotor67/mesh.vtu docs/img/rotor67_hub.png --point 0 0 0 --normal -1 0 0 \
+  --box -0.005 0.005 0.305 0.34 -0.03 0.02 --up 0 1 0 \
+  --title "Rotor 67: hub junction behind the blade's leading edge (cut x = 0), order 4, 10 layers"
+render ${VTU_DIR:-out}/rotor67/mesh.vtu docs/img/rotor67_tip.png --point 0.08 0 0 --normal -1 0 0 \
+  --box 0.075 0.085 0.80 0.85 -0.04 0.03 --up 0 1 0 \
+  --title "Rotor 67: casing junction at the blade tip (cut x = 0.08 ft), order 4, 10 layers"
 ls -la docs/img

@@ -115,7 +115,16 @@ std::string workflow_without(const fs::path& src, const fs::path& dst, const std
     bool skip = false;
     for (std::size_t k = 0; k < drop.size(); ++k)
       if (line.rfind("  " + drop[k] + ":", 0) == 0) skip = true, ++found[k];
-    if (!skip) out << line << "\n";
+    if (skip) continue;
+    // a relative `file:` is relative to the workflow's folder: make it absolute for the copy
+    auto at = line.find("file: ");
+    if (at != std::string::npos) {
+      auto b = at + 6, e = line.find_first_of(",}", b);
+      if (e == std::string::npos) e = line.size();
+      std::string f = line.substr(b, e - b);
+      if (!f.empty() && f[0] != '/') line.replace(b, e - b, (src.parent_path() / f).lexically_normal().string());
+    }
+    out << line << "\n";
   }
   for (std::size_t k = 0; k < drop.size(); ++k)
     if (found[k] != 1) throw std::runtime_error("workflow_without: '" + drop[k] + "' is not one entry of " + src.string());

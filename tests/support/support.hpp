@@ -17,7 +17,8 @@ void write_text(const fs::path& p, const std::string& text);  // creates parent 
 std::string read_text(const fs::path& p);                      // "" if unreadable
 // A copy of the workflow `src` at `dst` without the top-level entries (stages and outputs)
 // named in `drop` (lines "  <name>:" of the file; each must exist): a shorter variant of a
-// real workflow. Returns dst as a string.
+// real workflow; relative `file:` paths are made absolute (they are relative to src's folder).
+// Returns dst as a string.
 std::string workflow_without(const fs::path& src, const fs::path& dst, const std::vector<std::string>& drop);
 
 // Starts argv[0] with argv (stdout and stderr to `log`); returns the pid.

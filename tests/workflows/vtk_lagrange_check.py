@@ -58,11 +58,16 @@ def main(path):
             cell.InterpolateDerivs(p, d)
             D.append(np.array(d).reshape(n, 3).T if interleaved else np.array(d).reshape(3, n))
         D = np.array(D)  # (samples, 3, n)
-        P = X[conn[offsets[ids][:, None] + np.arange(n)]]  # (cells, n, 3)
-        J = np.matmul(D[None, :, :, :], P[:, None, :, :])  # (cells, samples, 3 param, 3 x): J transposed, same det
-        det = np.linalg.det(J)
-        bad = int((det.min(axis=1) <= 0).sum())
-        ratio = float((det.min(axis=1) / np.abs(det).max(axis=1)).min())
+        bad, ratio = 0, np.inf
+        # in chunks of cells, so that a mesh of millions of nodes (Rotor 67 at P = 4) fits in memory
+        chunk = max(1, 4000000 // (len(D) * n))
+        for a in range(0, len(ids), chunk):
+            c = ids[a:a + chunk]
+            P = X[conn[offsets[c][:, None] + np.arange(n)]]  # (cells, n, 3)
+            J = np.matmul(D[None, :, :, :], P[:, None, :, :])  # (cells, samples, 3 param, 3 x): J transposed, same det
+            det = np.linalg.det(J)
+            bad += int((det.min(axis=1) <= 0).sum())
+            ratio = min(ratio, float((det.min(axis=1) / np.abs(det).max(axis=1)).min()))
         print(cell.GetClassName(), len(ids), bad, "%.6g" % ratio)
 
 
