@@ -128,6 +128,40 @@ UVMeshOutput mesh_uv(const UVMeshInput& in) {
                                std::to_string(nv - ni) + " crossings; e.g. a junction strip wider than the face allows)");
   }
 
+  // A point that would see a constrained segment under more than kSliverAngle (in 3D, so that
+  // a pole's segment, of length 0, never counts) would make that segment's triangle a sliver.
+  // Our segments are never split, so a triangle on one longer than the local size stays "big"
+  // whatever is inserted, and its centroid lies a third of the way down to the segment:
+  // inserted pass after pass, the apex ends ever closer to the segment, a sliver whose prism
+  // the layer's directions turn over (Rotor 67: the blade beside its tip strip, where a
+  // 0.06-long segment follows the trailing edge's 0.002 ones, got triangles of quality 0.012
+  // and 0.02 there; with the shell's crossing thinning on, one such prism stayed inverted after
+  // untangling). Such points (circumcentres and centroids) are not inserted, so the apexes
+  // that refinement brings to a segment stay about 0.13 x its length or more from it (an
+  // isosceles triangle of quality ~0.3), and refinement next to a long segment still goes that
+  // far (a wing's leading edge). The constrained edges looked at: those of the triangle the point falls in and of
+  // its three neighbours.
+  static constexpr double kSliverAngle = 150 * M_PI / 180;
+  const double cos_sliver = std::cos(kSliverAngle);
+  auto encroaches = [&](const std::array<double, 3>& x, CDT::Face_handle a) {
+    if (cdt.is_infinite(a)) return false;
+    for (CDT::Face_handle fh : {a, a->neighbor(0), a->neighbor(1), a->neighbor(2)}) {
+      if (cdt.is_infinite(fh)) continue;
+      for (int i = 0; i < 3; ++i) {
+        if (!cdt.is_constrained(CDT::Edge(fh, i))) continue;
+        const auto& s0 = p3[fh->vertex(cdt.cw(i))->info()];
+        const auto& s1 = p3[fh->vertex(cdt.ccw(i))->info()];
+        double d = 0, a2 = 0, b2 = 0;  // (s0 - x).(s1 - x), |s0 - x|^2, |s1 - x|^2
+        for (int k = 0; k < 3; ++k) {
+          double u = s0[k] - x[k], w = s1[k] - x[k];
+          d += u * w, a2 += u * u, b2 += w * w;
+        }
+        if (d < cos_sliver * std::sqrt(a2 * b2)) return true;
+      }
+    }
+    return false;
+  };
+
   // ── refinement ──
   for (int pass = 0; pass < in.max_passes; ++pass) {
     mark_domains(cdt);
@@ -159,7 +193,7 @@ UVMeshOutput mesh_uv(const UVMeshInput& in) {
       Point p = g;
       auto lf = cdt.locate(cc, f);
       if (!cdt.is_infinite(lf) && lf->info().in_domain()) {
-        bool clear = true;
+        bool clear = !encroaches(in.point(cc.x(), cc.y()), lf);
         for (int i = 0; i < 3 && clear; ++i) {
           if (!cdt.is_constrained(CDT::Edge(lf, i))) continue;
           const Point& s0 = lf->vertex(cdt.cw(i))->point();
@@ -172,6 +206,7 @@ UVMeshOutput mesh_uv(const UVMeshInput& in) {
       } else if (skinny || q < 0.1) {
         continue;
       }
+      if (p == g && encroaches(in.point(g.x(), g.y()), f)) continue;  // (g is inside f)
       {
         double lmin = std::min({std::sqrt(CGAL::squared_distance(f->vertex(0)->point(), f->vertex(1)->point())),
                                 std::sqrt(CGAL::squared_distance(f->vertex(1)->point(), f->vertex(2)->point())),
