@@ -128,35 +128,36 @@ UVMeshOutput mesh_uv(const UVMeshInput& in) {
                                std::to_string(nv - ni) + " crossings; e.g. a junction strip wider than the face allows)");
   }
 
-  // A point that would see a constrained segment under more than kSliverAngle (in 3D, so that
-  // a pole's segment, of length 0, never counts) would make that segment's triangle a sliver.
-  // Our segments are never split, so a triangle on one longer than the local size stays "big"
-  // whatever is inserted, and its centroid lies a third of the way down to the segment:
-  // inserted pass after pass, the apex ends ever closer to the segment, a sliver whose prism
-  // the layer's directions turn over (Rotor 67: the blade beside its tip strip, where a
-  // 0.06-long segment follows the trailing edge's 0.002 ones, got triangles of quality 0.012
-  // and 0.02 there; with the shell's crossing thinning on, one such prism stayed inverted after
-  // untangling). Such points (circumcentres and centroids) are not inserted, so the apexes
-  // that refinement brings to a segment stay about 0.13 x its length or more from it (an
-  // isosceles triangle of quality ~0.3), and refinement next to a long segment still goes that
-  // far (a wing's leading edge). The constrained edges looked at: those of the triangle the point falls in and of
-  // its three neighbours.
-  static constexpr double kSliverAngle = 150 * M_PI / 180;
-  const double cos_sliver = std::cos(kSliverAngle);
+  // A point inside the diametral sphere of a constrained segment (in 3D, so that a pole's
+  // segment, of length 0, has none) whose sphere is still empty is not inserted. Our segments
+  // are never split, so a triangle on one longer than the local size stays "big" whatever is
+  // inserted, and its centroid lies a third of the way down to the segment: inserted pass after
+  // pass, the apex ended ever closer to the segment, a sliver whose prism the layer's
+  // directions turn over (Rotor 67: the blade beside its tip strip, where a 0.06-long segment
+  // follows the trailing edge's 0.002 ones, got triangles of quality 0.012 and 0.02 there; with
+  // the shell's crossing thinning on, one such prism stayed inverted after untangling). This is
+  // Ruppert's encroachment rule without the split: a segment whose sphere is empty keeps it
+  // empty. Next to a segment whose own triangle's apex is inside the sphere already (a face
+  // narrower than its segments) refinement goes on as before (keeping DLR-F6's narrow
+  // trailing-edge and pylon faces, and the end caps of junctions there, as they were). Circumcentres
+  // and centroids alike; the constrained edges looked at are those of the triangle the point
+  // falls in and of its three neighbours.
   auto encroaches = [&](const std::array<double, 3>& x, CDT::Face_handle a) {
     if (cdt.is_infinite(a)) return false;
+    // true when y is inside the diametral sphere of s0-s1 (sees it under more than 90 degrees)
+    auto wide = [&](const std::array<double, 3>& y, const std::array<double, 3>& s0, const std::array<double, 3>& s1) {
+      double d = 0;  // (s0 - y).(s1 - y)
+      for (int k = 0; k < 3; ++k) d += (s0[k] - y[k]) * (s1[k] - y[k]);
+      return d < 0;
+    };
     for (CDT::Face_handle fh : {a, a->neighbor(0), a->neighbor(1), a->neighbor(2)}) {
-      if (cdt.is_infinite(fh)) continue;
+      if (cdt.is_infinite(fh) || !fh->info().in_domain()) continue;
       for (int i = 0; i < 3; ++i) {
         if (!cdt.is_constrained(CDT::Edge(fh, i))) continue;
         const auto& s0 = p3[fh->vertex(cdt.cw(i))->info()];
         const auto& s1 = p3[fh->vertex(cdt.ccw(i))->info()];
-        double d = 0, a2 = 0, b2 = 0;  // (s0 - x).(s1 - x), |s0 - x|^2, |s1 - x|^2
-        for (int k = 0; k < 3; ++k) {
-          double u = s0[k] - x[k], w = s1[k] - x[k];
-          d += u * w, a2 += u * u, b2 += w * w;
-        }
-        if (d < cos_sliver * std::sqrt(a2 * b2)) return true;
+        if (wide(p3[fh->vertex(i)->info()], s0, s1)) continue;  // encroached already (a narrow face)
+        if (wide(x, s0, s1)) return true;
       }
     }
     return false;
