@@ -128,6 +128,41 @@ UVMeshOutput mesh_uv(const UVMeshInput& in) {
                                std::to_string(nv - ni) + " crossings; e.g. a junction strip wider than the face allows)");
   }
 
+  // A point inside the diametral sphere of a constrained segment (in 3D, so that a pole's
+  // segment, of length 0, has none) whose sphere is still empty is not inserted. Our segments
+  // are never split, so a triangle on one longer than the local size stays "big" whatever is
+  // inserted, and its centroid lies a third of the way down to the segment: inserted pass after
+  // pass, the apex ended ever closer to the segment, a sliver whose prism the layer's
+  // directions turn over (Rotor 67: the blade beside its tip strip, where a 0.06-long segment
+  // follows the trailing edge's 0.002 ones, got triangles of quality 0.012 and 0.02 there; with
+  // the shell's crossing thinning on, one such prism stayed inverted after untangling). This is
+  // Ruppert's encroachment rule without the split: a segment whose sphere is empty keeps it
+  // empty. Next to a segment whose own triangle's apex is inside the sphere already (a face
+  // narrower than its segments) refinement goes on as before (keeping DLR-F6's narrow
+  // trailing-edge and pylon faces, and the end caps of junctions there, as they were). Circumcentres
+  // and centroids alike; the constrained edges looked at are those of the triangle the point
+  // falls in and of its three neighbours.
+  auto encroaches = [&](const std::array<double, 3>& x, CDT::Face_handle a) {
+    if (cdt.is_infinite(a)) return false;
+    // true when y is inside the diametral sphere of s0-s1 (sees it under more than 90 degrees)
+    auto wide = [&](const std::array<double, 3>& y, const std::array<double, 3>& s0, const std::array<double, 3>& s1) {
+      double d = 0;  // (s0 - y).(s1 - y)
+      for (int k = 0; k < 3; ++k) d += (s0[k] - y[k]) * (s1[k] - y[k]);
+      return d < 0;
+    };
+    for (CDT::Face_handle fh : {a, a->neighbor(0), a->neighbor(1), a->neighbor(2)}) {
+      if (cdt.is_infinite(fh) || !fh->info().in_domain()) continue;
+      for (int i = 0; i < 3; ++i) {
+        if (!cdt.is_constrained(CDT::Edge(fh, i))) continue;
+        const auto& s0 = p3[fh->vertex(cdt.cw(i))->info()];
+        const auto& s1 = p3[fh->vertex(cdt.ccw(i))->info()];
+        if (wide(p3[fh->vertex(i)->info()], s0, s1)) continue;  // encroached already (a narrow face)
+        if (wide(x, s0, s1)) return true;
+      }
+    }
+    return false;
+  };
+
   // ── refinement ──
   for (int pass = 0; pass < in.max_passes; ++pass) {
     mark_domains(cdt);
@@ -159,7 +194,7 @@ UVMeshOutput mesh_uv(const UVMeshInput& in) {
       Point p = g;
       auto lf = cdt.locate(cc, f);
       if (!cdt.is_infinite(lf) && lf->info().in_domain()) {
-        bool clear = true;
+        bool clear = !encroaches(in.point(cc.x(), cc.y()), lf);
         for (int i = 0; i < 3 && clear; ++i) {
           if (!cdt.is_constrained(CDT::Edge(lf, i))) continue;
           const Point& s0 = lf->vertex(cdt.cw(i))->point();
@@ -172,6 +207,7 @@ UVMeshOutput mesh_uv(const UVMeshInput& in) {
       } else if (skinny || q < 0.1) {
         continue;
       }
+      if (p == g && encroaches(in.point(g.x(), g.y()), f)) continue;  // (g is inside f)
       {
         double lmin = std::min({std::sqrt(CGAL::squared_distance(f->vertex(0)->point(), f->vertex(1)->point())),
                                 std::sqrt(CGAL::squared_distance(f->vertex(1)->point(), f->vertex(2)->point())),

@@ -5,7 +5,9 @@
 // splits constrained edges that are encroached, and our boundary nodes are fixed (they are the
 // divisions the integer program chose and the nodes neighbouring faces share). Here a
 // candidate point that would encroach on a constraint is replaced by the bad triangle's
-// centroid, so the boundary is never touched. Sizes are 3D: a triangle is refined while its
+// centroid, so the boundary is never touched, and no point (centroids too) is inserted inside
+// the still empty diametral sphere of a segment (its triangle's apex would come ever closer:
+// slivers; see mesh_uv). Sizes are 3D: a triangle is refined while its
 // longest 3D edge exceeds `refine_ratio` × size(centroid), so the surface metric needs no
 // parameterisation-specific handling (poles, stretched B-splines).
 #pragma once

@@ -76,7 +76,9 @@ TEST_CASE("wing_body_parametric.yaml to the end: valid conforming linear mesh wi
 
 // At balance.max_size 0.04 the nose's parameter plane (a pole at v = 0) gave one triangle pair
 // folded onto itself around the pole (the same three nodes twice), which tet refused as a
-// boundary face given twice; sweep now removes such pairs.
+// boundary face given twice; sweep now removes such pairs. Since the face mesher keeps the empty
+// diametral spheres of boundary segments empty, the pair no longer forms there (nor at max_size
+// 0.03 to 0.06): the run still has to get through tet with a valid mesh.
 TEST_CASE("wing_body_parametric.yaml with coarser walls (max_size 0.04): the nose pole has no folded triangle pair") {
   fs::path dir = mftest::temp_dir("sweep-wing-body-coarse");
   // the workflow up to tet (the high-order stages and their output removed)
@@ -87,7 +89,6 @@ TEST_CASE("wing_body_parametric.yaml with coarser walls (max_size 0.04): the nos
                       " 2>&1");
   INFO(r.out);
   REQUIRE(r.code == 0);
-  CHECK(r.out.find("folded triangle pair(s) at a pole removed") != std::string::npos);
   auto mesh = meshflow::io::read_mesh(dir / "out/linear.msh");
   auto st = meshflow::model::mesh_stats(mesh);
   CHECK(st.at("invalid").get<int>() == 0);
