@@ -11,6 +11,9 @@
 #include <Eigen/LU>
 #include <LBFGS.h>
 #include <nlohmann/json.hpp>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 
 #include <algorithm>
 #include <array>
@@ -168,6 +171,12 @@ struct Patch {
   int nvars = 0;
   double h = 1, target = 0.2, spring = 1e-3;
   int lattice = 0;  // sample lattice (sample_order)
+  // The elements' energy terms and gradient contributions are computed in parallel (arena),
+  // each element into its own buffers, then summed in element order: the same additions in the
+  // same order as one thread, so the result is bit-identical at any thread count.
+  tbb::task_arena* arena = nullptr;
+  mutable std::vector<std::vector<double>> eterms;                 // per element: energy terms, in order
+  mutable std::vector<std::vector<std::pair<int, double>>> gterms;  // per element: (index in gx, term), in order
 
   explicit Patch(const Mesh& mesh) : m(mesh) {}
 
@@ -203,8 +212,14 @@ struct Patch {
       du[3 * i] = d.du.x, du[3 * i + 1] = d.du.y, du[3 * i + 2] = d.du.z;
       dv[3 * i] = d.dv.x, dv[3 * i + 1] = d.dv.y, dv[3 * i + 2] = d.dv.z;
     }
-    std::vector<double> X;
-    for (std::size_t ie = 0; ie < elems.size(); ++ie) {
+    eterms.resize(elems.size());
+    gterms.resize(elems.size());
+    auto element = [&](std::size_t ie) {
+      std::vector<double>& Et = eterms[ie];
+      std::vector<std::pair<int, double>>& Gt = gterms[ie];
+      Et.clear();
+      Gt.clear();
+      thread_local std::vector<double> X;
       const auto& b = m.blocks[elems[ie].block];
       const std::uint32_t* nodes = b.element(elems[ie].index);
       const auto& t = samples(b.shape, b.order, lattice);
@@ -256,7 +271,7 @@ struct Patch {
         for (Eigen::Index k = 0; k < c.size(); ++k)
           if (c(k) < target) {
             const double d = target - c(k);
-            E += w * d * d;
+            Et.push_back(w * d * d);
             dc(k) = -2 * w * d;
             any = true;
           }
@@ -269,12 +284,12 @@ struct Patch {
         for (int s = 0; s < t.ns; ++s)
           if (R[s] < target) {
             const double d = target - R[s];
-            E += w * d * d;
+            Et.push_back(w * d * d);
             dR[s] = -2 * w * d;
             any = true;
           }
       }
-      if (!any) continue;
+      if (!any) return;
       for (int s = 0; s < t.ns; ++s) {
         if (dR[s] == 0) continue;
         const double* dN = &t.dN[std::size_t(s) * t.n * 3];
@@ -285,10 +300,22 @@ struct Patch {
           for (int r2 = 0; r2 < 3; ++r2) {
             double v = 0;
             for (int c = 0; c < 3; ++c) v += C[3 * r2 + c] * dN[3 * a + c];
-            gx[3 * slot[a] + r2] += k * v;
+            Gt.push_back({3 * slot[a] + r2, k * v});
           }
         }
       }
+    };
+    if (arena && elems.size() > 1)
+      arena->execute([&] {
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, elems.size(), 1), [&](const tbb::blocked_range<std::size_t>& r) {
+          for (std::size_t ie = r.begin(); ie != r.end(); ++ie) element(ie);
+        });
+      });
+    else
+      for (std::size_t ie = 0; ie < elems.size(); ++ie) element(ie);
+    for (std::size_t ie = 0; ie < elems.size(); ++ie) {
+      for (double e : eterms[ie]) E += e;
+      for (auto [i, v] : gterms[ie]) gx[i] += v;
     }
     for (std::size_t i = 0; i < free.size(); ++i) {
       const double* G = &gx[3 * i];
@@ -313,6 +340,7 @@ struct Patch {
 UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const std::function<void(const std::string&)>& log,
                         const cad::Shape* shape, const std::function<void(std::size_t, std::size_t)>& progress) {
   const auto t0 = std::chrono::steady_clock::now();
+  tbb::task_arena arena(threads > 0 ? threads : tbb::task_arena::automatic);
   UntangleReport rep;
   rep.repaired_at_ring.assign(std::max(1, opt.max_rings), 0);
   const int dim = m.dimension();
@@ -462,6 +490,7 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
       // CAD faces on their faces: a wall face folded on the CAD cannot be repaired by the volume
       for (int mode = 0; mode < (shape && opt.surface ? 2 : 1) && !done; ++mode) {
       Patch P(m);
+      P.arena = &arena;
       P.shape = shape;
       P.h = h;
       P.target = opt.target;
