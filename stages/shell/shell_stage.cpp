@@ -234,9 +234,9 @@ struct Stage {
   // th <= kStripFraction x W_X. Each limit is a point constraint t(x) <= a + g |x - P0|, applied by
   // thickness_at to every wall point (3D distance, like the medial bound it joins): the field
   // stays g-Lipschitz and continuous across faces, a dimple of radius (T - a) / g around the
-  // narrow place. Exits through an edge that shares with the junction edge the end nearer to the
-  // station (the face's side edge at an acute corner, where sweep puts the block's end
-  // cross-section) or through a seam (not a boundary in 3D) do not count. Faces at least T / kStripFraction wide across their
+  // narrow place. Exits through an edge that shares a vertex with the junction edge (the face's
+  // side edge at an acute corner, where sweep puts the block's end cross-section) or through a
+  // seam (not a boundary in 3D) do not count. Faces at least T / kStripFraction wide across their
   // junction edges (every case before DLR-F6) are not affected: their shells are unchanged.
   static constexpr double kStripFraction = 0.5;
   struct WidthLimit {
@@ -249,28 +249,12 @@ struct Stage {
   Vec3 width_limit_at{};
   // how far the ray from station k of edge e along dir stays inside face X (INFINITY: beyond smax,
   // or it leaves through an edge that does not count, see above)
-  // A junction edge shorter than smax (DLR-F6's 0.67 mm edge 182, whose strip on face 53, a
-  // 21-degree wedge, is 2.3 mm wide) has a strip wider than the edge is long: every station's ray
-  // may reach the side edge at the far end, and there sweep's strip corner PB, a face node, lay
-  // on that side edge (160), giving face 53 a triangle of three collinear nodes (2 prisms
-  // inverted). For such an edge (short_edge) an exit through the side edge counts unless that
-  // edge is at the end nearer to the station, and a ray point beyond a boundary where the face's
-  // surface itself ends (face 53 along edge 160: its projection falls on that boundary, whose
-  // (u,v) the face contains) is outside. Longer edges keep the rules above: the limits these
-  // two would add elsewhere on DLR-F6 made the crossing thinning's first round bring the shell
-  // to 0.01 x its thickness from a wall, which the thinning refuses (58 crossings left).
-  double face_width(int e, int k, int X, const Vec3& dir, double smax, bool short_edge) const {
+  double face_width(int e, int k, int X, const Vec3& dir, double smax) const {
     const EdgeInfo& I = E[e];
     cad::Vec2 hint = I.uv[k].at(X);
-    const auto box = shape.face_uv_bounds(X);
-    auto on_box = [&](double u, double v) {
-      const double eu = 1e-9 * std::max(1.0, std::abs(box.u1 - box.u0)), ev = 1e-9 * std::max(1.0, std::abs(box.v1 - box.v0));
-      return std::abs(u - box.u0) < eu || std::abs(u - box.u1) < eu || std::abs(v - box.v0) < ev || std::abs(v - box.v1) < ev;
-    };
     auto inside = [&](double s, cad::Vec2& hnt) {
       auto pr = shape.project_to_face(X, cv(add(I.p[k], mul(dir, s))), hnt);
       hnt = cad::Vec2{pr.u, pr.v};
-      if (short_edge && pr.distance > 0.01 * s && on_box(pr.u, pr.v)) return false;
       return shape.face_contains_uv(X, pr.u, pr.v);
     };
     const int N = 8;
@@ -301,12 +285,9 @@ struct Stage {
       if (d < bd) bd = d, best = f2e;
     }
     if (best < 0 || best == e || shape.edge_is_seam(best, X)) return INFINITY;
-    // a short edge: only the side edge at the end nearer to the station (3D distance) excuses
-    const double d0 = norm(sub(I.p[k], I.p.front())), d1 = norm(sub(I.p[k], I.p.back()));
-    const bool near0 = !short_edge || d0 <= d1, near1 = !short_edge || d1 <= d0;
     auto vs = shape.edge_vertices(best);
     for (int v : vs)
-      if (v >= 0 && ((v == I.v0 && near0) || (v == I.v1 && near1))) return INFINITY;
+      if (v >= 0 && (v == I.v0 || v == I.v1)) return INFINITY;
     return lo;
   }
   void junction_width_limits() {
@@ -314,12 +295,9 @@ struct Stage {
     for (int e = 0; e < ne; ++e) {
       const EdgeInfo& I = E[e];
       if (!I.junction || I.t.empty()) continue;
-      double len = 0;
-      for (std::size_t k = 0; k + 1 < I.p.size(); ++k) len += norm(sub(I.p[k + 1], I.p[k]));
-      const bool short_edge = len < smax;
       for (std::size_t k = 0; k < I.t.size(); ++k) {
-        double w = std::min(face_width(e, static_cast<int>(k), I.a, I.ma[k], smax, short_edge),
-                            face_width(e, static_cast<int>(k), I.b, I.mb[k], smax, short_edge));
+        double w = std::min(face_width(e, static_cast<int>(k), I.a, I.ma[k], smax),
+                            face_width(e, static_cast<int>(k), I.b, I.mb[k], smax));
         if (!std::isfinite(w)) continue;
         double a = kStripFraction * w;
         if (!(a < T)) continue;
@@ -1877,7 +1855,7 @@ void run(StageContext& ctx) {
 }
 
 StageRegistrar reg({.kind = "shell",
-                    .version = 5,
+                    .version = 4,
                     .summary = "near-field shell bounded by the medial object: thickness/direction fields, prism and C-type hex junction blocks",
                     .libraries = {"CGAL " CGAL_VERSION_STR},
                     .run = run});

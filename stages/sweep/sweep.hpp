@@ -89,11 +89,13 @@
 //   - DLR-F6: the ends of the pylon junctions along edges 40 and 158 on the wing's 0.6 mm blunt
 //     trailing-edge face 9 (0.6 mm apart, their fans share a triangle, whose sliver prisms'
 //     outer faces are twisted) get no valid cap; both ends of edge 50 are capped at
-//     junction_angle_deg 170, where sweep now runs through (invalid 0). At 150 sweep stops after
-//     untangling, 2 prisms inverted, on the nacelle's face 0 and the pylon's leading-edge face 6
-//     (4 until the shell limited the strip of the 0.67 mm junction edge 182 by face 53's far side
-//     edge 160: its strip corner PB, 2.3 mm from the edge, was a face node lying on edge 160 and
-//     face 53's mesh had a triangle of three collinear nodes; see shell_stage.cpp, face_width).
+//     junction_angle_deg 170. Sweep stops after untangling, 4 prisms inverted (150; 3 at 170;
+//     6 and 5 before untangling stopped smoothing valid neighbours into the tangle), on the
+//     nacelle's face 0 and on face 53, B of the
+//     0.67 mm junction along edge 182 (not a third face): at its far end the strip corner PB,
+//     2.3 mm from the edge, is a face node lying on face 53's boundary edge 160 (the strip is
+//     wider than the face there; shell's face-width limit skips exits through an edge sharing a
+//     vertex with the junction edge), so face 53's mesh has a triangle of three collinear nodes.
 // Wall nodes are swept to their shell images by the shell's fields (vertex value, edge field,
 // face grid: the shell's RULE FOR SWEEP); nodes of the strip boundaries map to PC.
 // Untangling (sweep.cpp, untangle): inverted prisms' layer directions are smoothed with their
