@@ -493,6 +493,7 @@ struct Stage {
     welded_points = 0;
     strip_fallback.clear();
     refined_faces.clear();
+    resampled_points = 0;
     faces_unsampled = 0;
     unsampled_why.clear();
   }
@@ -617,6 +618,81 @@ struct Stage {
   }
 
   // ── 4. face grids ──
+  // the face's edges with their side values (for the blended direction of node_direction)
+  struct Near {
+    const EdgeInfo* I;
+    const std::vector<Vec3>* d;
+  };
+  std::vector<Near> near_edges(int f) const {
+    std::vector<Near> edges;
+    for (int e : shape.face_edges(f)) {
+      const EdgeInfo& I = E[e];
+      if (I.kind == EdgeKind::none || I.kind == EdgeKind::seam) continue;
+      auto it = I.dir.find(f);
+      if (it == I.dir.end()) it = I.dir.begin();
+      edges.push_back({&I, &it->second});
+    }
+    return edges;
+  }
+  // the shell direction at (u,v) (at x) of face f, as a grid node of face_grids has it
+  Vec3 node_direction(int f, double u, double v, const Vec3& x, const std::vector<Near>& edges) const {
+    Vec3 nrm = fluid_normal(f, u, v);
+    // d = R(n): the node's own normal turned by the blended rotation of the nearby edges.
+    // Edge e contributes the rotation vector r_e that turns the face's own normal n_e at the
+    // foot point into the edge value d_e, weighted by beta_e w_e / sum w (inverse-distance
+    // weights, so that at an edge its own rotation wins and d = d_e there). A rotation,
+    // not a direction, is blended: a tangent-continuous edge (d_e = n_e) adds nothing,
+    // and where two edges' directions nearly cancel (near the pole of a round tip) the
+    // node keeps its own normal instead of an arbitrary mean.
+    Vec3 de{0, 0, 0};
+    double wsum = 0;
+    for (auto& ne_ : edges) {
+      const EdgeInfo& I = *ne_.I;
+      // nearest point of the station polyline
+      double best = INFINITY;
+      std::size_t bk = 0;
+      double bs = 0;
+      for (std::size_t k = 0; k + 1 < I.p.size(); ++k) {
+        Vec3 a = I.p[k], ab = sub(I.p[k + 1], a);
+        double l2 = dot(ab, ab);
+        double s = l2 > 0 ? std::clamp(dot(sub(x, a), ab) / l2, 0.0, 1.0) : 0.0;
+        double dd = norm(sub(x, add(a, mul(ab, s))));
+        if (dd < best) best = dd, bk = k, bs = s;
+      }
+      double te = (1 - bs) * I.th[bk] + bs * I.th[bk + 1];
+      double R = blend * std::max(te, 1e-300);
+      if ((I.junction ? std::max(0.0, best - te) : best) >= R) continue;
+      // The distance along the face, not through space: the length of the straight (u,v)
+      // path to the foot point. Across a thin feature (the upper and lower surfaces of a
+      // trailing edge in one face) the 3D distance is small but the path is long, and
+      // blending the far side's edge direction would turn the shell sideways.
+      const auto& uva = I.uv[bk].at(f);
+      const auto& uvb = I.uv[bk + 1].at(f);
+      double path = surface_path(f, u, v, (1 - bs) * uva.u + bs * uvb.u, (1 - bs) * uva.v + bs * uvb.v, x);
+      best = std::max(best, path);
+      Vec3 dk = unit(add(mul((*ne_.d)[bk], 1 - bs), mul((*ne_.d)[bk + 1], bs)));
+      double dist = I.junction ? std::max(0.0, best - te) : best;
+      double beta = smoothstep(1 - dist / R);
+      if (beta <= 0) continue;
+      Vec3 nk = unit(add(mul(I.nu[bk].at(f), 1 - bs), mul(I.nu[bk + 1].at(f), bs)));
+      Vec3 ax = cross(nk, dk);
+      double sn = norm(ax), ang = std::atan2(sn, dot(nk, dk));
+      double b2 = best * best + 1e-12 * h * h, w = 1 / (b2 * b2);
+      if (sn > 1e-12) de = add(de, mul(ax, beta * w * ang / sn));
+      wsum += w;
+    }
+    Vec3 d = nrm;
+    if (wsum > 0) {
+      Vec3 rv = mul(de, 1 / wsum);
+      double th = norm(rv);
+      if (th > 1e-12) {  // Rodrigues
+        Vec3 k = mul(rv, 1 / th);
+        d = unit(add(add(mul(nrm, std::cos(th)), mul(cross(k, nrm), std::sin(th))), mul(k, dot(k, nrm) * (1 - std::cos(th)))));
+      }
+    }
+    return d;
+  }
+
   void face_grids() {
     int done = 0, nw = 0;
     for (int f = 0; f < nf; ++f) nw += wall[f];
@@ -642,78 +718,13 @@ struct Stage {
       G.nu = std::clamp(static_cast<int>(std::ceil(Lu / h)) + 1, std::min(9, max_grid), max_grid);
       G.nv = std::clamp(static_cast<int>(std::ceil(Lv / h)) + 1, std::min(9, max_grid), max_grid);
       G.data.resize(std::size_t(G.nu) * G.nv * 4);
-      // the face's edges with their side values
-      struct Near {
-        const EdgeInfo* I;
-        const std::vector<Vec3>* d;
-      };
-      std::vector<Near> edges;
-      for (int e : shape.face_edges(f)) {
-        const EdgeInfo& I = E[e];
-        if (I.kind == EdgeKind::none || I.kind == EdgeKind::seam) continue;
-        auto it = I.dir.find(f);
-        if (it == I.dir.end()) it = I.dir.begin();
-        edges.push_back({&I, &it->second});
-      }
+      const auto edges = near_edges(f);
       for (int j = 0; j < G.nv; ++j)
         for (int i = 0; i < G.nu; ++i) {
           double u = G.u0 + (G.u1 - G.u0) * i / (G.nu - 1), v = G.v0 + (G.v1 - G.v0) * j / (G.nv - 1);
           Vec3 x = v3(shape.face_point(f, u, v));
-          Vec3 nrm = fluid_normal(f, u, v);
           double t = thickness_at(x, {f});
-          // d = R(n): the node's own normal turned by the blended rotation of the nearby edges.
-          // Edge e contributes the rotation vector r_e that turns the face's own normal n_e at the
-          // foot point into the edge value d_e, weighted by beta_e w_e / sum w (inverse-distance
-          // weights, so that at an edge its own rotation wins and d = d_e there). A rotation,
-          // not a direction, is blended: a tangent-continuous edge (d_e = n_e) adds nothing,
-          // and where two edges' directions nearly cancel (near the pole of a round tip) the
-          // node keeps its own normal instead of an arbitrary mean.
-          Vec3 de{0, 0, 0};
-          double wsum = 0;
-          for (auto& ne_ : edges) {
-            const EdgeInfo& I = *ne_.I;
-            // nearest point of the station polyline
-            double best = INFINITY;
-            std::size_t bk = 0;
-            double bs = 0;
-            for (std::size_t k = 0; k + 1 < I.p.size(); ++k) {
-              Vec3 a = I.p[k], ab = sub(I.p[k + 1], a);
-              double l2 = dot(ab, ab);
-              double s = l2 > 0 ? std::clamp(dot(sub(x, a), ab) / l2, 0.0, 1.0) : 0.0;
-              double dd = norm(sub(x, add(a, mul(ab, s))));
-              if (dd < best) best = dd, bk = k, bs = s;
-            }
-            double te = (1 - bs) * I.th[bk] + bs * I.th[bk + 1];
-            double R = blend * std::max(te, 1e-300);
-            if ((I.junction ? std::max(0.0, best - te) : best) >= R) continue;
-            // The distance along the face, not through space: the length of the straight (u,v)
-            // path to the foot point. Across a thin feature (the upper and lower surfaces of a
-            // trailing edge in one face) the 3D distance is small but the path is long, and
-            // blending the far side's edge direction would turn the shell sideways.
-            const auto& uva = I.uv[bk].at(f);
-            const auto& uvb = I.uv[bk + 1].at(f);
-            double path = surface_path(f, u, v, (1 - bs) * uva.u + bs * uvb.u, (1 - bs) * uva.v + bs * uvb.v, x);
-            best = std::max(best, path);
-            Vec3 dk = unit(add(mul((*ne_.d)[bk], 1 - bs), mul((*ne_.d)[bk + 1], bs)));
-            double dist = I.junction ? std::max(0.0, best - te) : best;
-            double beta = smoothstep(1 - dist / R);
-            if (beta <= 0) continue;
-            Vec3 nk = unit(add(mul(I.nu[bk].at(f), 1 - bs), mul(I.nu[bk + 1].at(f), bs)));
-            Vec3 ax = cross(nk, dk);
-            double sn = norm(ax), ang = std::atan2(sn, dot(nk, dk));
-            double b2 = best * best + 1e-12 * h * h, w = 1 / (b2 * b2);
-            if (sn > 1e-12) de = add(de, mul(ax, beta * w * ang / sn));
-            wsum += w;
-          }
-          Vec3 d = nrm;
-          if (wsum > 0) {
-            Vec3 rv = mul(de, 1 / wsum);
-            double th = norm(rv);
-            if (th > 1e-12) {  // Rodrigues
-              Vec3 k = mul(rv, 1 / th);
-              d = unit(add(add(mul(nrm, std::cos(th)), mul(cross(k, nrm), std::sin(th))), mul(k, dot(k, nrm) * (1 - std::cos(th)))));
-            }
-          }
+          Vec3 d = node_direction(f, u, v, x, edges);
           double* q = &G.data[(std::size_t(j) * G.nu + i) * 4];
           q[0] = t, q[1] = d[0], q[2] = d[1], q[3] = d[2];
         }
@@ -953,6 +964,11 @@ struct Stage {
   static constexpr double kSag = 0.1;         // sampled-surface chord sag, x the face's least thickness
   static constexpr int kMaxRefine = 8;
   std::vector<std::array<int, 3>> refined_faces;  // (face, ru, rv) sampled finer than their grid
+  static constexpr int kSagRounds = 6;
+  static constexpr int kResamplePasses = 3;
+  std::vector<char> lattice_bare;  // per face: no lattice point inside, no junction strip (sample_surface)
+  std::set<int> resample_faces;    // bare faces sampled from the field at the points (see run)
+  long resampled_points = 0;
   void sample_surface() {
     // ids: vertex -> id, (edge, station, side) -> id
     std::map<int, int> vid;
@@ -1034,6 +1050,7 @@ struct Stage {
       return id;
     };
     std::vector<char> strips_used(nf, 0);
+    lattice_bare.assign(nf, 0);
     for (int f = 0; f < nf; ++f) {
       if (!wall[f]) continue;
       const FaceGrid& G = grids.at(f);
@@ -1284,6 +1301,73 @@ struct Stage {
         unsampled_why.push_back("face " + std::to_string(f) + ": " + ex.what());
         continue;
       }
+      // Faces the lattice does not reach. The lattice and its refinement above see a face only
+      // through its field grid's nodes: a face narrower than a grid cell (DLR-F6's face 80, a
+      // sliver along the outer wing to its tip: 0.4 mm wide, 330 mm long, 13 mm cells) has no
+      // node inside, every lattice point falls within h/2 of its boundary and is dropped, and
+      // the face is triangulated from its boundary stations alone (there the triangulation
+      // fanned from one station of a long edge to the short end edge's stations 13 mm away,
+      // and that fan's shell cut the tip face's shell at the convex edge between them, at the
+      // thinning's floor). On such a face the grid's bilinear interpolant is not the field
+      // either: all its nodes lie off the face, and points sampled from it fold against the
+      // boundary stations' edge directions (tried: 10 crossings on face 80 instead of 1). So a
+      // face in resample_faces (bare, with a crossing the thinning left, see run) is sampled
+      // from the field as a grid node has it, at the point itself (thickness_at,
+      // node_direction: at an edge its own direction wins, so the points continue the
+      // boundary's): every triangle whose shell at its (u,v) centroid sags from the mean of its
+      // corners' shell by more than kSag x the least thickness there gets its centroid (inside
+      // the triangle, so inside the face), and the face is triangulated again, at most
+      // kSagRounds times. Faces sampled outside a junction strip are left out: the strip's
+      // boundary maps to the junction block's corner PC, which the face's own field near it
+      // does not continue (resampling those too put 50 crossings along DLR-F6's strips).
+      const bool bare = uv.size() == nb && !use_strips;
+      lattice_bare[f] = bare;
+      const bool resample = bare && resample_faces.count(f);
+      const auto nedges = near_edges(f);
+      auto exact_at = [&](double u, double v) {
+        Vec3 x = v3(shape.face_point(f, u, v));
+        return std::pair<double, Vec3>{thickness_at(x, {f}), node_direction(f, u, v, x, nedges)};
+      };
+      if (resample) {
+        std::vector<Vec3> S;
+        std::vector<double> Th;
+        auto shell_at = [&](double u, double v, double* th) {
+          auto [t, d] = exact_at(u, v);
+          *th = t;
+          Vec3 x = v3(shape.face_point(f, u, v));
+          return add(x, mul(d, t));
+        };
+        for (int round = 0; round < kSagRounds; ++round) {
+          while (S.size() < uv.size()) {
+            double t = 0;
+            S.push_back(shell_at(uv[S.size()][0], uv[S.size()][1], &t));
+            Th.push_back(t);
+          }
+          std::vector<std::array<double, 2>> more;
+          for (std::size_t ti = 0; ti < tris.size(); ++ti) {
+            if (depth[ti] % 2 == 0) continue;
+            const auto& t = tris[ti];
+            const double uc = (uv[t[0]][0] + uv[t[1]][0] + uv[t[2]][0]) / 3;
+            const double vc = (uv[t[0]][1] + uv[t[1]][1] + uv[t[2]][1]) / 3;
+            double tc = 0;
+            Vec3 sc = shell_at(uc, vc, &tc);
+            Vec3 m = mul(add(add(S[t[0]], S[t[1]]), S[t[2]]), 1.0 / 3);
+            double tl = std::min({Th[t[0]], Th[t[1]], Th[t[2]], tc});
+            if (tl > 0 && norm(sub(sc, m)) > kSag * tl) more.push_back({uc, vc});
+          }
+          if (more.empty()) break;
+          for (auto& q : more) uv.push_back(q), gid.push_back(-1);
+          resampled_points += static_cast<long>(more.size());
+          try {
+            tris = cdt2(uv, seg, &depth);
+          } catch (const std::exception& ex) {
+            tris.clear();
+            ++faces_unsampled;
+            unsampled_why.push_back("face " + std::to_string(f) + ": " + ex.what());
+            break;
+          }
+        }
+      }
       for (std::size_t ti = 0; ti < tris.size(); ++ti) {
         const auto& t = tris[ti];
         // Inside the face: odd nesting depth in the CDT (outside the loops or in a hole: even).
@@ -1299,7 +1383,7 @@ struct Stage {
         for (int c = 0; c < 3; ++c) {
           int li = t[c];
           if (gid[li] < 0) {
-            auto [th, d] = grid_at(f, uv[li][0], uv[li][1]);
+            auto [th, d] = resample ? exact_at(uv[li][0], uv[li][1]) : grid_at(f, uv[li][0], uv[li][1]);
             Vec3 x = v3(shape.face_point(f, uv[li][0], uv[li][1]));
             gid[li] = add_point(x, add(x, mul(d, th)), {});
           }
@@ -1309,7 +1393,6 @@ struct Stage {
         out.shell_tris.push_back(g);
         out.shell_tri_face.push_back(f);
       }
-      (void)nb;
     }
     // wall|wall junctions: close the crack between the two sides' shells through the block's
     // outer corner curve PC = P0 + t (m_A + m_B)
@@ -1554,6 +1637,40 @@ struct Stage {
       reset_fields();
       final = true;
     }
+    // Crossings the thinning left (DLR-F6: 1, at the floor) may be the sampling's, not the
+    // shell's: a face the lattice does not reach is triangulated from its boundary alone (see
+    // sample_surface). The bare faces of the crossing triangles are sampled from the field at
+    // the points and the surface built again, with the same thinning, as long as that clears
+    // crossings (a pass that does not is undone). Only where crossings are treated at all
+    // (crossing_rounds > 0) and left: other shells keep their bytes.
+    for (int pass = 0; max_crossing_rounds > 0 && inter.pairs > 0 && pass < kResamplePasses; ++pass) {
+      std::set<int> more;
+      for (auto [i, j] : inter.all)
+        for (int t : {i, j}) {
+          const int f = out.shell_tri_face[t];
+          if (lattice_bare[f] && !resample_faces.count(f)) more.insert(f);
+        }
+      if (more.empty()) break;
+      const auto keep = resample_faces;
+      const long before = inter.pairs;
+      resample_faces.insert(more.begin(), more.end());
+      auto rebuild = [&] {
+        reset_fields();
+        edge_fields();
+        face_grids();
+        sample_surface();
+        inter = self_intersections(out.shell_points, out.shell_tris);
+        cl_last.reset();
+      };
+      ctx.log(std::to_string(before) + " crossing pairs left; sampling " + std::to_string(more.size()) +
+              " face(s) the lattice does not reach from the field");
+      rebuild();
+      if (inter.pairs >= before) {
+        resample_faces = keep;
+        rebuild();
+        break;
+      }
+    }
     if (crossing_rounds > 0) {  // what the kept constraints do
       crossing_points = static_cast<long>(crossing_limits.size());
       crossing_min_scale = 1;
@@ -1675,6 +1792,9 @@ struct Stage {
       for (auto [f, a, b] : refined_faces) rf.push_back({f, a, b});
       rundiag["sampling_refined_faces"] = rf;  // (face, ru, rv): interior lattice finer than the field grid
     }
+    if (!resample_faces.empty())  // faces sampled from the field at the points (see run)
+      rundiag["resampled_faces"] = {{"faces", std::vector<int>(resample_faces.begin(), resample_faces.end())},
+                                    {"points", resampled_points}};
     if (!unsampled_why.empty()) stats["unsampled"] = unsampled_why;
     long nj = 0, nwall_other = 0, nww = 0;
     nlohmann::json jlist = nlohmann::json::array();
@@ -1735,7 +1855,7 @@ void run(StageContext& ctx) {
 }
 
 StageRegistrar reg({.kind = "shell",
-                    .version = 3,
+                    .version = 4,
                     .summary = "near-field shell bounded by the medial object: thickness/direction fields, prism and C-type hex junction blocks",
                     .libraries = {"CGAL " CGAL_VERSION_STR},
                     .run = run});
