@@ -9,6 +9,7 @@
 #include <doctest/doctest.h>
 
 #include <algorithm>
+#include <cctype>
 #include <array>
 #include <atomic>
 #include <cstdio>
@@ -118,6 +119,8 @@ std::string workflow_without(const fs::path& src, const fs::path& dst, const std
     if (skip) continue;
     // a relative `file:` is relative to the workflow's folder: make it absolute for the copy
     auto at = line.find("file: ");
+    while (at != std::string::npos && at > 0 && std::isalnum(static_cast<unsigned char>(line[at - 1])))  // not e.g. "profile: "
+      at = line.find("file: ", at + 1);
     if (at != std::string::npos) {
       auto b = at + 6, e = line.find_first_of(",}", b);
       if (e == std::string::npos) e = line.size();
