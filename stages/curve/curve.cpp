@@ -547,9 +547,15 @@ void Curver::build_cad_info() {
     // two representations, u near 0 and u near 2 pi, and interpolating between them goes the
     // long way round the hub: the high-order nodes of those elements landed on the far side of
     // the hub, on the CAD (distance 0) but 0.6 ft away.
+    // Only where the face spans less than half a period in that direction: then two of its
+    // points are always less than half a period apart and the nearest representation is the
+    // right one. A wider face (the demo's round tip, a surface of revolution over more than pi)
+    // has elements round its poles whose corners legitimately lie more than half a period apart.
     const auto fp = S_.face_periods(f);
+    const auto fb = S_.face_uv_bounds(f);
+    const double width[2] = {fb.u1 - fb.u0, fb.v1 - fb.v0};
     for (int k = 0; k < 2; ++k) {
-      if (!(fp[k] > 0) || I.periods.size() >= 2) continue;
+      if (!(fp[k] > 0) || !(width[k] < 0.5 * fp[k]) || I.periods.size() >= 2) continue;
       UV d{k == 0 ? fp[0] : 0.0, k == 1 ? fp[1] : 0.0};
       bool dup = false;
       for (auto& p : I.periods) dup = dup || (std::abs(std::abs(p[0]) - d[0]) < 1e-9 && std::abs(std::abs(p[1]) - d[1]) < 1e-9);

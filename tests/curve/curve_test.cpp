@@ -278,26 +278,26 @@ TEST_CASE("curve: bad input is refused with a clear message") {
   CHECK(msg(badt, 4).find("outside the edge's range") != std::string::npos);
 }
 
-// A face whose parameter range straddles its surface's seam but which has no seam edge (a half
-// cylinder, u in [-pi/2, pi/2]; Rotor 67's hub and casing sectors): node parameters may be given
+// A face whose parameter range straddles its surface's seam but which has no seam edge (a
+// cylinder sector, u in [-pi/3, pi/3]; Rotor 67's hub and casing sectors): node parameters may be given
 // in any period (the mesh contract), here u in [0, 2 pi) as a projection answers, so the nodes
 // on either side of u = 0 are a period apart in (u,v). Interpolating across without unwrapping
 // goes the long way round: the high-order nodes land on the far side of the cylinder, on the CAD.
 TEST_CASE("curve: a face straddling its surface's seam without a seam edge does not fold") {
-  auto S = half_cylinder_face(1.0, 1.0);
+  auto S = cylinder_sector_face(1.0, 1.0, kPi / 3);
   int f = -1;
   for (int k = 0; k < S.num_faces(); ++k)
     if (S.face_tag(k) == meshflow::cad::Tag::wall) f = k;
   REQUIRE(f >= 0);
   REQUIRE(std::abs(S.face_periods(f)[0] - 2 * kPi) < 1e-9);
   for (int e : S.face_edges(f)) REQUIRE_FALSE(S.edge_is_seam(e, f));
-  // a (theta, z) grid on the wall, theta in [-pi/2, pi/2], classified by projection
+  // a (theta, z) grid on the wall, theta in [-pi/3, pi/3], classified by projection
   const int na = 8, nb = 2;
   model::Mesh m;
   std::vector<std::uint32_t> id;
   for (int j = 0; j <= nb; ++j)
     for (int i = 0; i <= na; ++i) {
-      double th = -kPi / 2 + kPi * i / na;
+      double th = -kPi / 3 + 2 * kPi / 3 * i / na;
       id.push_back(m.add_node(std::cos(th), std::sin(th), double(j) / nb));
     }
   const std::size_t N = m.num_nodes();
@@ -352,7 +352,7 @@ TEST_CASE("curve: a face straddling its surface's seam without a seam edge does 
     CHECK(r.fallback_projections == 0);
     CHECK(r.max_distance_surface < 1e-7);
     CHECK(worst_parameter_gap(out, S) < 1e-9);
-    // the chord of a pi/8 arc sags 0.02 of its length: a node a period away bulges by ~1
+    // the chord of a pi/12 arc sags 0.016 of its length: a node a period away bulges by ~1
     CHECK(worst_edge_bulge(out) < 0.05);
   }
 }

@@ -42,9 +42,9 @@ meshflow::cad::Shape cylinder_shell(double r1, double r2, double h) {
   return tagged(BRepAlgoAPI_Cut(outer, inner).Shape(), r1);
 }
 
-meshflow::cad::Shape half_cylinder_face(double r, double h) {
+meshflow::cad::Shape cylinder_sector_face(double r, double h, double a) {
   Handle(Geom_CylindricalSurface) cyl = new Geom_CylindricalSurface(gp_Ax3(gp::XOY()), r);
-  TopoDS_Shape face = BRepBuilderAPI_MakeFace(cyl, -M_PI / 2, M_PI / 2, 0.0, h, 1e-9).Shape();
+  TopoDS_Shape face = BRepBuilderAPI_MakeFace(cyl, -a, a, 0.0, h, 1e-9).Shape();
   auto S = meshflow::cad::occt::make_shape(face, "m");
   S.set_face_tag(0, meshflow::cad::Tag::wall);
   return S;

@@ -9,9 +9,9 @@ meshflow::cad::Shape sphere_shell(double r1, double r2);
 // Fluid between coaxial cylinders r1 < r2 on the z axis, 0 <= z <= h (inner: wall, outer:
 // farfield, the two planar annuli: symmetry).
 meshflow::cad::Shape cylinder_shell(double r1, double r2, double h);
-// One face, tagged wall: the half cylinder x >= 0 of radius r on the z axis, 0 <= z <= h, on
-// an untrimmed cylindrical surface, so its parameter range, u in [-pi/2, pi/2], straddles the
+// One face, tagged wall: the sector -a <= u <= a of the cylinder of radius r on the z axis,
+// 0 <= z <= h, on an untrimmed cylindrical surface, so that its parameter range straddles the
 // surface's seam u = 0 but the face has no seam edge (Rotor 67's hub and casing sectors are
 // faces of that kind).
-meshflow::cad::Shape half_cylinder_face(double r, double h);
+meshflow::cad::Shape cylinder_sector_face(double r, double h, double a);
 }  // namespace curvetest
