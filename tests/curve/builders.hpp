@@ -45,6 +45,22 @@ inline double det3(const std::array<double, 3>& a, const std::array<double, 3>& 
   return a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0]) + a[2] * (b[0] * c[1] - b[1] * c[0]);
 }
 
+// Whether p lies on CAD edge e (distance < tol), and its parameter t there: project_to_edge may
+// answer on the whole periodic curve, outside the edge's range, so its answer is moved into the
+// range by a period.
+inline bool on_edge(const meshflow::cad::Shape& S, int e, const meshflow::cad::Vec3& p, double tol, double& t) {
+  auto pr = S.project_to_edge(e, p);
+  auto rr = S.edge_range(e);
+  for (double sh : {0.0, 2 * kPi, -2 * kPi})
+    if (pr.t + sh >= rr.lo - 1e-9 && pr.t + sh <= rr.hi + 1e-9) {
+      pr.t += sh;
+      break;
+    }
+  if (pr.t < rr.lo - 1e-9 || pr.t > rr.hi + 1e-9 || !(pr.distance < tol)) return false;
+  t = pr.t;
+  return true;
+}
+
 inline Built build(const meshflow::cad::Shape& S, const Grid& g, double tol = 1e-7) {
   Built out;
   Mesh& m = out.mesh;
@@ -90,17 +106,9 @@ inline Built build(const meshflow::cad::Shape& S, const Grid& g, double tol = 1e
     }
     for (int e = 0; e < S.num_edges() && !done; ++e) {
       if (S.edge_degenerate(e)) continue;
-      auto pr = S.project_to_edge(e, p);
-      // project_to_edge may answer on the whole periodic curve (outside the edge's range)
-      auto rr = S.edge_range(e);
-      for (double sh : {0.0, 2 * kPi, -2 * kPi})
-        if (pr.t + sh >= rr.lo - 1e-9 && pr.t + sh <= rr.hi + 1e-9) {
-          pr.t += sh;
-          break;
-        }
-      if (pr.t < rr.lo - 1e-9 || pr.t > rr.hi + 1e-9) continue;
-      if (pr.distance < tol * scale) {
-        m.node_entity_dim[n] = 1, m.node_entity_tag[n] = e + 1, m.node_u[n] = pr.t, done = true;
+      double t = 0;
+      if (on_edge(S, e, p, tol * scale, t)) {
+        m.node_entity_dim[n] = 1, m.node_entity_tag[n] = e + 1, m.node_u[n] = t, done = true;
         edges_of[n].insert(e);
         for (int f : S.edge_faces(e)) faces_of[n].insert(f);
       }

@@ -311,16 +311,8 @@ TEST_CASE("curve: a face straddling its surface's seam without a seam edge does 
       if (std::hypot(q.x - p.x, q.y - p.y, q.z - p.z) < 1e-9) m.node_entity_dim[n] = 0, m.node_entity_tag[n] = v + 1, done = true;
     }
     for (int e : S.face_edges(f)) {
-      if (done) break;
-      auto pr = S.project_to_edge(e, p);
-      auto rr = S.edge_range(e);
-      for (double sh : {0.0, 2 * kPi, -2 * kPi})
-        if (pr.t + sh >= rr.lo - 1e-9 && pr.t + sh <= rr.hi + 1e-9) {
-          pr.t += sh;
-          break;
-        }
-      if (pr.distance < 1e-9 && pr.t >= rr.lo - 1e-9 && pr.t <= rr.hi + 1e-9)
-        m.node_entity_dim[n] = 1, m.node_entity_tag[n] = e + 1, m.node_u[n] = pr.t, done = true;
+      double t = 0;
+      if (!done && on_edge(S, e, p, 1e-9, t)) m.node_entity_dim[n] = 1, m.node_entity_tag[n] = e + 1, m.node_u[n] = t, done = true;
     }
     if (done) continue;
     auto pr = S.project_to_face(f, p);
