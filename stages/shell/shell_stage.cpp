@@ -22,6 +22,7 @@
 #include <queue>
 #include <set>
 #include <sstream>
+#include <tuple>
 
 namespace meshflow::shell {
 namespace {
@@ -1324,17 +1325,17 @@ struct Stage {
       lattice_bare[f] = bare;
       const bool resample = bare && resample_faces.count(f);
       const auto nedges = near_edges(f);
+      // the field at (u,v) as a grid node has it: thickness, direction, and the wall point x
       auto exact_at = [&](double u, double v) {
         Vec3 x = v3(shape.face_point(f, u, v));
-        return std::pair<double, Vec3>{thickness_at(x, {f}), node_direction(f, u, v, x, nedges)};
+        return std::tuple<double, Vec3, Vec3>{thickness_at(x, {f}), node_direction(f, u, v, x, nedges), x};
       };
       if (resample) {
         std::vector<Vec3> S;
         std::vector<double> Th;
         auto shell_at = [&](double u, double v, double* th) {
-          auto [t, d] = exact_at(u, v);
+          auto [t, d, x] = exact_at(u, v);
           *th = t;
-          Vec3 x = v3(shape.face_point(f, u, v));
           return add(x, mul(d, t));
         };
         for (int round = 0; round < kSagRounds; ++round) {
@@ -1383,8 +1384,14 @@ struct Stage {
         for (int c = 0; c < 3; ++c) {
           int li = t[c];
           if (gid[li] < 0) {
-            auto [th, d] = resample ? exact_at(uv[li][0], uv[li][1]) : grid_at(f, uv[li][0], uv[li][1]);
-            Vec3 x = v3(shape.face_point(f, uv[li][0], uv[li][1]));
+            double th = 0;
+            Vec3 d, x;
+            if (resample) {
+              std::tie(th, d, x) = exact_at(uv[li][0], uv[li][1]);
+            } else {
+              std::tie(th, d) = grid_at(f, uv[li][0], uv[li][1]);
+              x = v3(shape.face_point(f, uv[li][0], uv[li][1]));
+            }
             gid[li] = add_point(x, add(x, mul(d, th)), {});
           }
           g[c] = gid[li];
@@ -1600,15 +1607,20 @@ struct Stage {
     std::size_t best_limits = 0;
     int best_round = 0;
     std::optional<Clearance> cl_last;  // of the surface built last, when the loop measured it
-    for (bool final = false;;) {
-      ctx.progress(0.25, crossing_rounds ? "edge fields (thinning round " + std::to_string(crossing_rounds) + ")" : "edge fields");
+    // the fields, the sampled surface and its crossings, from the current constraints (after
+    // reset_fields); progress reported when a label is given
+    auto build_surface = [&](const std::string& label) {
+      if (!label.empty()) ctx.progress(0.25, label);
       edge_fields();
       face_grids();
-      ctx.progress(0.7, "sampled shell surface");
+      if (!label.empty()) ctx.progress(0.7, "sampled shell surface");
       sample_surface();
-      ctx.progress(0.85, "checks");
+      if (!label.empty()) ctx.progress(0.85, "checks");
       inter = self_intersections(out.shell_points, out.shell_tris);
       cl_last.reset();
+    };
+    for (bool final = false;;) {
+      build_surface(crossing_rounds ? "edge fields (thinning round " + std::to_string(crossing_rounds) + ")" : "edge fields");
       if (final) break;
       // a round must not bring the shell much nearer to a wall than the unthinned one was (a
       // dimple next to a junction corner can turn a strip's corner point onto the other face)
@@ -1656,11 +1668,7 @@ struct Stage {
       resample_faces.insert(more.begin(), more.end());
       auto rebuild = [&] {
         reset_fields();
-        edge_fields();
-        face_grids();
-        sample_surface();
-        inter = self_intersections(out.shell_points, out.shell_tris);
-        cl_last.reset();
+        build_surface("");
       };
       ctx.log(std::to_string(before) + " crossing pairs left; sampling " + std::to_string(more.size()) +
               " face(s) the lattice does not reach from the field");
