@@ -531,15 +531,19 @@ void Curver::build_cad_info() {
   for (int f = 0; f < nf; ++f) {
     auto& I = finfo_[f];
     I.edges = S_.face_edges(f);
+    // a period of the face's (u,v), unless one of the same size is known already
+    auto add_period = [&I](const UV& d) {
+      bool dup = false;
+      for (auto& p : I.periods) dup = dup || (std::abs(std::abs(p[0]) - std::abs(d[0])) < 1e-9 && std::abs(std::abs(p[1]) - std::abs(d[1])) < 1e-9);
+      if (!dup) I.periods.push_back(d);
+    };
     for (int e : I.edges) {
       if (einfo_[e].degenerate || !S_.edge_is_seam(e, f)) continue;
       double t = 0.5 * (einfo_[e].range.lo + einfo_[e].range.hi);
       cad::Vec2 a = S_.edge_uv(e, f, t, false), b = S_.edge_uv(e, f, t, true);
       UV d{b.u - a.u, b.v - a.v};
       if (std::hypot(d[0], d[1]) < 1e-12) continue;
-      bool dup = false;
-      for (auto& p : I.periods) dup = dup || (std::abs(std::abs(p[0]) - std::abs(d[0])) < 1e-9 && std::abs(std::abs(p[1]) - std::abs(d[1])) < 1e-9);
-      if (!dup) I.periods.push_back(d);
+      add_period(d);
     }
     // The surface's own periods, for a face without a seam edge whose parameter box still
     // straddles the surface's seam (Rotor 67's hub and casing: a 2 pi / 22 sector of a surface
@@ -556,10 +560,7 @@ void Curver::build_cad_info() {
     const double width[2] = {fb.u1 - fb.u0, fb.v1 - fb.v0};
     for (int k = 0; k < 2; ++k) {
       if (!(fp[k] > 0) || !(width[k] < 0.5 * fp[k]) || I.periods.size() >= 2) continue;
-      UV d{k == 0 ? fp[0] : 0.0, k == 1 ? fp[1] : 0.0};
-      bool dup = false;
-      for (auto& p : I.periods) dup = dup || (std::abs(std::abs(p[0]) - d[0]) < 1e-9 && std::abs(std::abs(p[1]) - d[1]) < 1e-9);
-      if (!dup) I.periods.push_back(d);
+      add_period(UV{k == 0 ? fp[0] : 0.0, k == 1 ? fp[1] : 0.0});
     }
   }
   for (auto& ent : in_.entities)

@@ -9,9 +9,9 @@
 #include <doctest/doctest.h>
 
 #include <algorithm>
-#include <cctype>
 #include <array>
 #include <atomic>
+#include <cctype>
 #include <cstdio>
 #include <fcntl.h>
 #include <fstream>
