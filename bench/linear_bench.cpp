@@ -1,8 +1,8 @@
 // Issue 6's benchmark for the workflows that end at the linear hybrid mesh (tet) or before it:
 // time and peak memory per stage from an empty cache, and what the last stage produced. The
 // workflows that run to split (NACA, the STEP wing) are measured with their re-runs by
-// pipeline_bench; this one covers Rotor 67 (through tet) and DLR-F6 (to balance, and sweep/tet
-// as far as they get), each once from an empty cache. Writes bench/results/linear.md.
+// pipeline_bench; this one covers Rotor 67 and DLR-F6 (both now to split), each once from an
+// empty cache. Writes bench/results/linear.md.
 // Usage: build/bench/linear_bench
 #include "bench_util.hpp"
 
@@ -23,9 +23,8 @@ int main() {
   struct W {
     std::string file, title, extra;
   };
-  // DLR-F6's workflow ends at balance (its near field is not valid yet): measured as it stands
-  std::vector<W> ws = {{"workflows/rotor67.yaml", "Rotor 67 blade sector (`workflows/rotor67.yaml`, through tet)", ""},
-                       {"workflows/wing_body.yaml", "DLR-F6 wing-body (`workflows/wing_body.yaml`, to balance)", ""}};
+  std::vector<W> ws = {{"workflows/rotor67.yaml", "Rotor 67 blade sector (`workflows/rotor67.yaml`, to split)", ""},
+                       {"workflows/wing_body.yaml", "DLR-F6 wing-body (`workflows/wing_body.yaml`, to split)", ""}};
   std::ostringstream md;
   md << "## Linear hybrid mesh (issue 6): stages of the real-CAD workflows\n\n"
      << "Produced by `cmake --build build --target linear_bench && build/bench/linear_bench` (part of `make bench`): "

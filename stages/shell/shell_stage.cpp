@@ -13,6 +13,7 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <functional>
 #include <cstdlib>
 #include <chrono>
 #include <cmath>
@@ -208,6 +209,65 @@ struct Stage {
     for (auto& v : treated_nbrs) {
       std::sort(v.begin(), v.end());
       v.erase(std::unique(v.begin(), v.end()), v.end());
+    }
+  }
+
+  // ── 1a. junction chains that end on a third face ──
+  // A junction edge ending at a vertex V where a wall face meets that is neither face of any
+  // junction ending at V (DLR-F6: the pylon's junctions with the wing end on the pylon's blunt
+  // trailing-edge face, the pylon-nacelle junction on the pylon's leading-edge face) leaves a
+  // pocket between the hex's end face and the third face's prisms that no layered element fills
+  // (stages/sweep/sweep.hpp, "Junction ends on a third face"). With third_face_ends = averaged
+  // every junction edge connected to such an end (through vertices shared by junction edges:
+  // the whole chain, so that no block ends in the middle of a wall|wall curve) gets no block; it
+  // is treated like a concave edge above junction_angle_deg (normals averaged), so every element
+  // there is a layered prism. With `cap` the blocks stay and sweep caps their ends (tets and
+  // pyramids, which split cannot layer). Recorded in stats.junction_chains_averaged.
+  nlohmann::json averaged_chains = nlohmann::json::array();
+  void average_third_face_chains() {
+    std::vector<std::set<int>> vfaces(std::max(nv, 0));
+    std::vector<std::vector<int>> vjunctions(std::max(nv, 0));
+    for (int e = 0; e < ne; ++e) {
+      if (shape.edge_degenerate(e)) continue;
+      auto vs = shape.edge_vertices(e);
+      for (int f : shape.edge_faces(e))
+        if (wall[f])
+          for (int v : vs)
+            if (v >= 0 && v < nv) vfaces[v].insert(f);
+      if (E[e].junction)
+        for (int k = 0; k < 2; ++k)
+          if (vs[k] >= 0 && vs[k] < nv && (k == 0 || vs[1] != vs[0])) vjunctions[vs[k]].push_back(e);
+    }
+    // chains: junction edges connected through shared vertices (union-find on edge ids)
+    std::vector<int> parent(ne);
+    for (int e = 0; e < ne; ++e) parent[e] = e;
+    std::function<int(int)> find = [&](int a) { return parent[a] == a ? a : parent[a] = find(parent[a]); };
+    for (int v = 0; v < nv; ++v)
+      for (std::size_t k = 1; k < vjunctions[v].size(); ++k) {
+        int a = find(vjunctions[v][0]), b = find(vjunctions[v][k]);
+        if (a != b) parent[std::max(a, b)] = std::min(a, b);
+      }
+    std::map<int, std::pair<int, int>> ends;  // chain root -> (vertex, third face) of its first such end
+    for (int v = 0; v < nv; ++v) {
+      if (vjunctions[v].empty()) continue;
+      std::set<int> roles;
+      for (int e : vjunctions[v]) roles.insert(E[e].a), roles.insert(E[e].b);
+      for (int f : vfaces[v])
+        if (!roles.count(f)) {
+          ends.emplace(find(vjunctions[v][0]), std::make_pair(v, f));
+          break;
+        }
+    }
+    for (auto& [root, vf] : ends) {
+      std::vector<int> chain;
+      for (int e = 0; e < ne; ++e)
+        if (E[e].junction && find(e) == root) chain.push_back(e), E[e].junction = false;
+      auto x = shape.vertex_point(vf.first);
+      averaged_chains.push_back({{"edges", chain}, {"vertex", vf.first}, {"third_face", vf.second}, {"at", {x.x, x.y, x.z}}});
+      std::string l = "shell: the junction chain along edge";
+      for (int e : chain) l += " " + std::to_string(e);
+      ctx.log(l + " ends at vertex " + std::to_string(vf.first) + " on face " + std::to_string(vf.second) +
+              ", not one of its faces: no junction blocks along it, normals averaged (third_face_ends: averaged)");
     }
   }
 
@@ -499,6 +559,48 @@ struct Stage {
     unsampled_why.clear();
   }
 
+  static double min_dot(const Vec3& d, const std::vector<Vec3>& n) {
+    double q = INFINITY;
+    for (auto& x : n) q = std::min(q, dot(d, x));
+    return q;
+  }
+  // The unit d maximising min_i d.n_i over unit normals n_i (q: that minimum). The optimum is
+  // fixed by at most three active normals (a spherical minimax), so the candidates are each
+  // normal, each pair's bisector and each triple's equiangular direction (N d = 1): at most
+  // C(k,3) for the k faces at a vertex (k <= 8 in practice; capped at 12 normals).
+  static Vec3 maximin_direction(std::vector<Vec3> n, double& q) {
+    std::vector<Vec3> u;  // distinct normals
+    for (auto& x : n) {
+      bool dup = false;
+      for (auto& y : u) dup = dup || dot(x, y) > 1 - 1e-9;
+      if (!dup && u.size() < 12) u.push_back(x);
+    }
+    Vec3 best = u.front();
+    q = -INFINITY;
+    auto consider = [&](Vec3 d) {
+      double l = norm(d);
+      if (!(l > 1e-12)) return;
+      d = mul(d, 1 / l);
+      if (double qd = min_dot(d, u); qd > q + 1e-12) q = qd, best = d;
+    };
+    const std::size_t k = u.size();
+    for (std::size_t a = 0; a < k; ++a) {
+      consider(u[a]);
+      for (std::size_t b = a + 1; b < k; ++b) {
+        consider(add(u[a], u[b]));
+        for (std::size_t c = b + 1; c < k; ++c) {
+          // d = N^-1 (1,1,1) with rows u[a], u[b], u[c] (Cramer: the cross products)
+          Vec3 bc = cross(u[b], u[c]), ca = cross(u[c], u[a]), ab = cross(u[a], u[b]);
+          double det = dot(u[a], bc);
+          if (std::abs(det) < 1e-9) continue;
+          consider(mul(add(add(bc, ca), ab), 1 / det));
+        }
+      }
+    }
+    return best;
+  }
+  long maximin_vertices = 0;  // vertices given the maximin direction (edge_fields)
+
   // ── 3. edge fields ──
   void edge_fields() {
     for (int e = 0; e < ne; ++e) {
@@ -535,7 +637,9 @@ struct Stage {
     v_has.assign(nv, 0);
     v_t.assign(nv, INFINITY);
     v_d.assign(nv, Vec3{0, 0, 0});
-    std::vector<std::vector<Vec3>> other_normals(nv);
+    std::vector<std::vector<Vec3>> other_normals(nv), wall_normals(nv);
+    std::vector<char> averaged_concave(nv, 0);  // a concave wall|wall edge without a block ends here
+    maximin_vertices = 0;
     for (int e = 0; e < ne; ++e) {
       EdgeInfo& I = E[e];
       if (I.kind == EdgeKind::none) continue;
@@ -547,11 +651,26 @@ struct Stage {
         v_t[v] = std::min(v_t[v], I.th[k]);
         for (auto& [f, d] : I.dir) v_d[v] = add(v_d[v], d[k]);
         if (I.kind == EdgeKind::wall_other) other_normals[v].push_back(I.nu[k][I.b]);
+        for (auto& [f, n] : I.nu[k])
+          if (wall[f]) wall_normals[v].push_back(n);
+        if (I.kind == EdgeKind::wall_wall && I.concave && !I.junction) averaged_concave[v] = 1;
       }
     }
     for (int v = 0; v < nv; ++v) {
       if (!v_has[v]) continue;
       Vec3 d = unit(v_d[v]);
+      // A vertex of an acute concave corner without junction blocks (DLR-F6: where the pylon's
+      // averaged chain meets the wing's spanwise panels, fluid angle 51 degrees): the mean of
+      // the edge values leans towards the side with more edges there (two wing faces, one pylon
+      // face) and is almost tangent to the pylon (0.06 of the way out), so the pylon's prisms
+      // at the vertex fold whatever their height. There the direction that is furthest from
+      // every wall face's tangent plane (max over d of min_f d.n_f) is used instead, when the
+      // mean is less than half as far out as it. Only where a concave wall|wall edge without a
+      // block ends (elsewhere the mean has served every shell so far).
+      if (double qm = 0; averaged_concave[v] && !wall_normals[v].empty()) {
+        auto best = maximin_direction(wall_normals[v], qm);
+        if (qm > 0 && min_dot(d, wall_normals[v]) < 0.5 * qm) d = best, ++maximin_vertices;
+      }
       for (int it = 0; it < 3; ++it)
         for (auto& n : other_normals[v]) d = unit(sub(d, mul(n, dot(d, n))));
       v_d[v] = d;
@@ -1592,6 +1711,7 @@ struct Stage {
     treated_nbrs.assign(nf, {});
     ctx.progress(0.02, "edges");
     classify_edges();
+    if (topo_c && P.at("third_face_ends") == "averaged") average_third_face_chains();
     face_edges_cache.resize(nf);
     for (int f = 0; f < nf; ++f) face_edges_cache[f] = shape.face_edges(f);
     junction_width_limits();
@@ -1804,6 +1924,8 @@ struct Stage {
       rundiag["resampled_faces"] = {{"faces", std::vector<int>(resample_faces.begin(), resample_faces.end())},
                                     {"points", resampled_points}};
     if (!unsampled_why.empty()) stats["unsampled"] = unsampled_why;
+    if (!averaged_chains.empty()) stats["junction_chains_averaged"] = averaged_chains;
+    if (maximin_vertices) stats["maximin_vertices"] = maximin_vertices;
     long nj = 0, nwall_other = 0, nww = 0;
     nlohmann::json jlist = nlohmann::json::array();
     for (int e = 0; e < ne; ++e) {
@@ -1863,7 +1985,7 @@ void run(StageContext& ctx) {
 }
 
 StageRegistrar reg({.kind = "shell",
-                    .version = 4,
+                    .version = 5,
                     .summary = "near-field shell bounded by the medial object: thickness/direction fields, prism and C-type hex junction blocks",
                     .libraries = {"CGAL " CGAL_VERSION_STR},
                     .run = run});

@@ -1251,7 +1251,74 @@ void Builder::untangle(std::vector<std::vector<std::uint32_t>>& P) {
   m.x = x0, m.y = y0, m.z = z0;
   R.thinned = 0;
   fixed_img.clear();
-  round(" (junction corners moved too)");
+  if (round(" (junction corners moved too)")) return;
+  // Where smoothing fails both ways (DLR-F6: a sliver of the pylon's face along its acute
+  // averaged corner with the wing, 1.5 mm from the corner edge under a 1.2 mm layer: the
+  // corner's direction, which the wing's prisms need, folds it; smoothing it towards the
+  // pylon's neighbours folds the wing's prisms), each shell node of an inverted prism is
+  // placed instead, from the layer as it came from the fields, by a pattern search that
+  // maximises the smallest scaled Jacobian of the prisms around it (each in the orientation
+  // its wall triangle had before: a prism folded through the wall does not count as valid),
+  // node by node in node order, until every prism is valid or a sweep over them changes
+  // nothing. The junction corners stay fixed.
+  m.x = x0, m.y = y0, m.z = z0;
+  R.thinned = 0;
+  for (auto& j : J)
+    for (auto n : j.pc) fixed_img.insert(n);
+  std::vector<char> flip(P.size(), 0);
+  const auto& fl = flip_of(model::Shape::Prism);
+  for (std::size_t k = 0; k < P.size(); ++k) {
+    V3 b0 = X(P[k][0]), b1 = X(P[k][1]), b2 = X(P[k][2]);
+    V3 up = sub(add(add(X(P[k][3]), X(P[k][4])), X(P[k][5])), add(add(b0, b1), b2));
+    flip[k] = dot(cross(sub(b1, b0), sub(b2, b0)), up) < 0;
+  }
+  auto quality = [&](std::size_t k) {
+    double X3[18];
+    for (int c = 0; c < 6; ++c) {
+      auto n = P[k][flip[k] ? fl[c] : c];
+      X3[3 * c] = m.x[n], X3[3 * c + 1] = m.y[n], X3[3 * c + 2] = m.z[n];
+    }
+    auto q = model::element_quality(model::Shape::Prism, 1, X3);
+    return q.valid ? std::max(q.scaled_jacobian, 1e-12) : std::min(q.scaled_jacobian, 0.0) - 1;
+  };
+  auto around = [&](std::uint32_t i) {
+    double w = INFINITY;
+    for (auto k : prisms_of_img[i]) w = std::min(w, quality(k));
+    return w;
+  };
+  for (int sweep = 0; sweep < 20; ++sweep) {
+    std::set<std::uint32_t> bad;
+    for (std::size_t k = 0; k < P.size(); ++k)
+      if (!(quality(k) > 0))
+        for (int c = 0; c < 3; ++c)
+          if (movable(P[k][c])) bad.insert(img.at(P[k][c]));
+    if (bad.empty()) {
+      log("sweep: prisms untangled by placing " + std::to_string(R.placed) + " shell nodes");
+      return;
+    }
+    bool changed = false;
+    for (auto i : bad) {
+      const V3 start = X(i);
+      V3 w = X(wall_of.at(i)), b = start;
+      const double len = norm(sub(b, w)), reach = 1.5 * len;
+      double q = around(i), step = 0.25 * len;
+      auto put = [&](V3 x) { m.x[i] = x[0], m.y[i] = x[1], m.z[i] = x[2]; };
+      for (int it = 0; it < 40 && step > 1e-4 * len; ++it) {
+        bool moved = false;
+        for (int d = 0; d < 27; ++d) {
+          if (d == 13) continue;  // (0, 0, 0)
+          V3 x{b[0] + (d % 3 - 1) * step, b[1] + (d / 3 % 3 - 1) * step, b[2] + (d / 9 - 1) * step};
+          if (norm(sub(x, w)) > reach) continue;
+          put(x);
+          if (double qx = around(i); qx > q) q = qx, b = x, moved = true;
+        }
+        if (!moved) step *= 0.5;
+      }
+      put(b);
+      if (b != start) changed = true, ++R.placed;
+    }
+    if (!changed) break;
+  }
 }
 
 // ── crossings of the near field's outer surface ────────────────────────────────────────
@@ -2167,7 +2234,7 @@ model::Mesh Builder::run() {
 nlohmann::json Report::to_json() const {
   return {{"wall_triangles", wall_triangles}, {"strip_quads", strip_quads},   {"slide_quads", slide_quads},
           {"boundary_triangles", boundary_triangles}, {"prisms", prisms},     {"hexes", hexes},
-          {"junction_blocks", junction_blocks},     {"edges_cut", edges_cut}, {"thinned", thinned}, {"nodes", nodes},
+          {"junction_blocks", junction_blocks},     {"edges_cut", edges_cut}, {"thinned", thinned}, {"placed", placed}, {"nodes", nodes},
           {"outer_crossings_before", outer_crossings_before}, {"outer_crossings", outer_crossings},
           {"crossing_nodes_thinned", crossing_nodes_thinned}, {"crossing_min_scale", crossing_min_scale},
           {"faces_meshed", faces_meshed},           {"surface_seconds", surface_seconds},

@@ -52,8 +52,11 @@
 // block and B of the next at V (DLR-F6's fuselage where the wing root loop passes from one wing
 // face to the next) gets one node for both roles, and blocks whose end cross-sections share their
 // two strip corners share one PC (their end faces coincide).
-// Junction ends on a third face (the former KNOWN LIMITATION; what is left of it: "Still open"
-// below; tests/sweep/junction_width_test.cpp's open U): a junction ending
+// Junction ends on a third face (the former KNOWN LIMITATION): by default the shell gives every
+// junction chain with such an end averaged normals instead of blocks (shell.third_face_ends:
+// averaged; stages/shell/shell_stage.cpp, average_third_face_chains), so sweep sees none; what
+// follows is the `cap` choice (what is left of it: "Still open" below;
+// tests/sweep/junction_width_test.cpp's open U with cap). A junction ending
 // at a vertex V whose other wall faces include a face F that is neither A nor B of a block there
 // (the U's common flush side). PA and PB then lie on F's boundary (its edges with A and B, cut
 // there) and are swept to PC, V keeps its own vertex image V', and the hex's end face
@@ -86,21 +89,18 @@
 //     mesh, and the fan at V includes that face's triangles. There the cap stays just invalid
 //     (min scaled Jacobian -0.004: three of its pyramids' twisted bases meet at PC; moving PC
 //     too did not help) and is refused;
-//   - DLR-F6: the ends of the pylon junctions along edges 40 and 158 on the wing's 0.6 mm blunt
-//     trailing-edge face 9 (0.6 mm apart, their fans share a triangle, whose sliver prisms'
-//     outer faces are twisted) get no valid cap; both ends of edge 50 are capped at
-//     junction_angle_deg 170. Sweep stops after untangling, 4 prisms inverted (150; 3 at 170;
-//     6 and 5 before untangling stopped smoothing valid neighbours into the tangle), on the
-//     nacelle's face 0 and on face 53, B of the
-//     0.67 mm junction along edge 182 (not a third face): at its far end the strip corner PB,
-//     2.3 mm from the edge, is a face node lying on face 53's boundary edge 160 (the strip is
-//     wider than the face there; shell's face-width limit skips exits through an edge sharing a
-//     vertex with the junction edge), so face 53's mesh has a triangle of three collinear nodes.
+//   - DLR-F6 with cap (measured before averaged became the default): the ends of the pylon
+//     junctions along edges 40 and 158 on the wing's 0.6 mm blunt trailing-edge face 9 (0.6 mm
+//     apart, their fans share a triangle) get no valid cap, and tet then refuses the pockets
+//     left at them (an inverted pyramid on a quad of the pocket).
 // Wall nodes are swept to their shell images by the shell's fields (vertex value, edge field,
 // face grid: the shell's RULE FOR SWEEP); nodes of the strip boundaries map to PC.
 // Untangling (sweep.cpp, untangle): inverted prisms' layer directions are smoothed with their
 // neighbours' (after 20 passes the layer is also thinned there); a neighbour's move that would
-// invert a prism valid before that pass is undone.
+// invert a prism valid before that pass is undone. Where that fails with the junction corners
+// fixed and free, the shell nodes of the inverted prisms are placed one by one by pattern search
+// maximising the smallest scaled Jacobian around them (stats placed; DLR-F6: 21 along the
+// pylon's acute averaged corner with the wing).
 // Wall|other edges that are not junctions (topology O, or tags not in junction_with): the
 // prism's side quad lies on the other face, whose triangulation starts at the images.
 //
@@ -150,6 +150,7 @@ struct Report {
   std::size_t prisms = 0, hexes = 0, junction_blocks = 0, edges_cut = 0;
   std::size_t end_caps = 0, cap_tets = 0, cap_pyramids = 0;  // junction ends on a third face (see above)
   std::size_t thinned = 0;  // node moves that thinned the layer to untangle prisms
+  std::size_t placed = 0;   // shell nodes placed by pattern search where smoothing failed (sweep.cpp, untangle)
   // the near field's outer surface (sweep.cpp, clear_crossings): crossing face pairs found first
   // and left at the end, layer nodes thinned to clear them and the smallest height scale used
   long outer_crossings_before = 0, outer_crossings = 0;

@@ -72,7 +72,7 @@ void run(StageContext& ctx) {
 }
 
 StageRegistrar reg({.kind = "sweep",
-                    .version = 5,
+                    .version = 6,
                     .summary = "surface meshes of all faces (CDT in the parameter plane) and the one-layer prism/hex near field",
                     .libraries = {},
                     .run = run});

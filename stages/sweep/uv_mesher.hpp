@@ -24,7 +24,8 @@ struct UVMeshInput {
   std::vector<std::array<int, 2>> segments;  // closed loops of constrained segments
   // optional, per boundary point: 1 where the boundary is tangent-continuous in 3D. No output
   // triangle has two boundary segments meeting at such a point (curved, its corner there would
-  // open to 180 degrees): such a triangle is split at its centroid at the end.
+  // open to 180 degrees): at the end such a triangle is split (a point off the shorter segment,
+  // or its centroid), or, when it is flat (that point falls outside it), its third edge flipped.
   std::vector<char> smooth;
   std::function<std::array<double, 3>(double, double)> point;  // surface point at (u, v)
   std::function<double(double, double)> size;                  // target 3D edge length at (u, v)
@@ -44,6 +45,7 @@ struct UVMeshOutput {
   std::vector<std::array<int, 3>> tris;   // counter-clockwise in (u, v), inside the loops only
   int passes = 0;
   int smooth_corner_splits = 0;  // triangles split because two boundary segments met at a smooth point
+  int smooth_corner_flips = 0;   // such flat triangles whose third edge was flipped instead
   double min_quality = 1;  // of the result
 };
 

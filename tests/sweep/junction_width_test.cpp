@@ -31,17 +31,23 @@ nlohmann::json stage_stats(const fs::path& out, const std::string& stage) {
 
 // runs the ledge workflow up to `last` (sweep or tet); returns the output folder. With `result`,
 // the run's exit code and output go there instead of being required to succeed.
-fs::path run_ledge(const std::string& tag, bool open_u, const std::string& last, mftest::ShellResult* result = nullptr) {
+fs::path run_ledge(const std::string& tag, bool open_u, const std::string& last, mftest::ShellResult* result = nullptr,
+                   const std::string& shell_extra = "") {
   fs::path dir = mftest::temp_dir(tag);
   sweeptest::write_ledge_body(dir / "ledge.brep", 0.2, open_u);
   std::string wf = "meshflow: 1\nname: ledge\nstages:\n"
                    "  geometry: {kind: step, with: {file: ledge.brep, units: m}}\n"
                    "  heal: {kind: heal, needs: [geometry], with: {fluid: box, box_padding: 1}}\n"
                    "  medial: {kind: medial, needs: [heal]}\n"
-                   "  shell: {kind: shell, needs: [heal, medial], with: {thickness: 0.125, topology: C, junction_with: [wall]}}\n"
+                   "  shell: {kind: shell, needs: [heal, medial], with: {thickness: 0.125, topology: C, junction_with: [wall]" +
+                   shell_extra + "}}\n"
                    "  balance: {kind: balance, needs: [heal, shell]}\n"
                    "  sweep: {kind: sweep, needs: [heal, shell, balance]}\n";
-  if (last == "tet") wf += "  tet: {kind: tet, needs: [sweep]}\n";
+  if (last == "tet" || last == "split") wf += "  tet: {kind: tet, needs: [sweep]}\n";
+  if (last == "split")
+    wf += "  curve: {kind: curve, needs: [heal, tet], with: {order: 4}}\n"
+          "  optimise: {kind: optimise, needs: [heal, curve]}\n"
+          "  split: {kind: split, needs: [optimise], with: {layers: 10, ratio: 1.5}}\n";
   wf += "outputs:\n  mesh: {from: " + last + ", formats: [msh]}\n";
   mftest::write_text(dir / "wf.yaml", wf);
   auto r = mftest::sh(std::string(MESHFLOW_EXE) + " run " + (dir / "wf.yaml").string() + " --cache " + (dir / "cache").string() +
@@ -108,9 +114,9 @@ TEST_CASE("junction along a ledge narrower than its strip (closed ring): thickne
 // face"): the third face's prisms at the vertex become tets and pyramids with apex the vertex's
 // shell node and the pocket a pyramid on the end face, so tet fills the far field. Without the
 // caps (end_caps 0) tet fails here again.
-TEST_CASE("junction along a ledge narrower than its strip (open U, junction ends at a third face): sweep caps both junction ends, tet fills the far field, valid and conforming") {
+TEST_CASE("junction along a ledge narrower than its strip (open U, junction ends at a third face, shell.third_face_ends cap): sweep caps both junction ends, tet fills the far field, valid and conforming") {
   mftest::ShellResult r;
-  fs::path out = run_ledge("jw-u", true, "tet", &r);
+  fs::path out = run_ledge("jw-u", true, "tet", &r, ", third_face_ends: cap");
   INFO(r.out);
   REQUIRE(r.code == 0);
   CHECK(r.out.find("is used by 4 faces") == std::string::npos);
@@ -127,4 +133,33 @@ TEST_CASE("junction along a ledge narrower than its strip (open U, junction ends
   CHECK(st.at("elements").at("hex").get<long>() > 0);
   CHECK(st.at("elements").at("pyramid").get<long>() == caps.at("cap_pyramids").get<long>());  // tet added none: no exposed quad
   CHECK(st.at("elements").at("tet").get<long>() > 1000);
+}
+
+// The open U with the default third_face_ends (averaged): the junction chain along the U ends on
+// the common flush side at both ends, so the shell gives it averaged normals instead of blocks
+// (stats.junction_chains_averaged: the whole chain, named by its end), no end caps are needed,
+// and every near-field element is a prism, which split layers: the run reaches the end, valid
+// and conforming, prisms x10. With cap (above) split refuses the caps' pyramids.
+TEST_CASE("open U with shell.third_face_ends averaged (the default): the chain ending on the third face gets no blocks, and the run reaches split valid") {
+  mftest::ShellResult r;
+  fs::path out = run_ledge("jw-u-avg", true, "split", &r);
+  INFO(r.out);
+  REQUIRE(r.code == 0);
+  auto sh = stage_stats(out, "shell");
+  REQUIRE(sh.contains("junction_chains_averaged"));
+  auto chains = sh.at("junction_chains_averaged");
+  MESSAGE("shell: " << chains.dump());
+  REQUIRE(chains.size() >= 1);
+  for (auto& c : chains) CHECK(c.at("edges").size() >= 1);
+  CHECK(sh.at("counts").at("hex_junction_blocks").get<long>() == 0);  // the U's chain is its only junction
+  auto sw = stage_stats(out, "sweep");
+  CHECK(sw.at("sweep").at("end_caps").get<int>() == 0);
+  CHECK(sw.at("mesh").at("invalid").get<int>() == 0);
+  auto lin = meshflow::io::read_mesh(out / "mesh.msh");
+  auto st = meshflow::model::mesh_stats(lin);
+  CHECK(st.at("order").get<int>() == 4);
+  CHECK(st.at("invalid").get<int>() == 0);
+  CHECK(st.at("nonconforming_faces").get<int>() == 0);
+  CHECK(st.at("elements").at("prism").get<long>() == 10 * sw.at("mesh").at("elements").at("prism").get<long>());
+  CHECK(st.at("elements").at("hex").get<long>() == 0);
 }

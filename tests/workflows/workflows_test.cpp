@@ -1,6 +1,7 @@
 // End-to-end: the real `meshflow` binary on the real workflows of workflows/, as a user runs it.
 #include <doctest/doctest.h>
 
+#include "external_checks.hpp"
 #include "support.hpp"
 
 #include <nlohmann/json.hpp>
@@ -24,20 +25,6 @@ namespace {
 using mftest::sh;
 std::string meshflow() { return std::string(MESHFLOW_EXE); }
 
-// Gmsh's AnalyseMeshQuality on a mesh (tests/workflows/gmsh_jacobian_check.py): per element type
-// name, {elements, elements with minJ/maxJ <= 0}.
-std::map<std::string, std::pair<long, long>> gmsh_flags(const fs::path& msh) {
-  auto g = sh(std::string(MESHFLOW_PYTHON) + " " + std::string(MESHFLOW_SOURCE_DIR) + "/tests/workflows/gmsh_jacobian_check.py " +
-              msh.string());
-  INFO(g.out);
-  REQUIRE(g.code == 0);
-  std::istringstream in(g.out);
-  std::map<std::string, std::pair<long, long>> by;
-  std::string name;
-  long n = 0, b = 0;
-  while (in >> name >> n >> b) by[name] = {n, b};
-  return by;
-}
 fs::path temp_dir() { return mftest::temp_dir("e2e"); }
 std::string slurp(const fs::path& p) { return mftest::read_text(p); }
 }  // namespace
@@ -120,22 +107,16 @@ TEST_CASE("naca_wingtip: runs, matches its golden, re-runs from cache, --set re-
   // every tet, wedge and hex) and Gmsh's AnalyseMeshQuality (authoritative for the tets)
   {
     const std::string src = MESHFLOW_SOURCE_DIR;
-    auto v = sh(std::string(MESHFLOW_PYTHON) + " " + src + "/tests/workflows/vtk_lagrange_check.py " + (d / "out/mesh.vtu").string());
-    INFO(v.out);
-    REQUIRE(v.code == 0);
-    std::istringstream in(v.out);
-    std::string cls;
-    long cells = 0, bad = 0;
-    double ratio = 0;
+    auto vtk = mfcheck::vtk_flags(d / "out/mesh.vtu");
     int types = 0;
-    while (in >> cls >> cells >> bad >> ratio) {
+    for (auto& [cls, cb] : vtk) {
       INFO(cls);
-      CHECK(cells > 0);
-      CHECK(bad == 0);
+      CHECK(cb.first > 0);
+      CHECK(cb.second == 0);
       ++types;
     }
     CHECK(types == 3);  // tets, wedges, hexes
-    auto by = gmsh_flags(d / "out/mesh.msh");
+    auto by = mfcheck::gmsh_flags(d / "out/mesh.msh");
     REQUIRE(by.count("Tetrahedron"));
     CHECK(by["Tetrahedron"].first > 1000);
     CHECK(by["Tetrahedron"].second == 0);
@@ -178,7 +159,7 @@ TEST_CASE("naca_wingtip: runs, matches its golden, re-runs from cache, --set re-
       CHECK(s["status"] == (reran ? "ran" : "cached"));
       if (name == "split") CHECK(s["stats"]["mesh"]["invalid"] == 0);
     }
-    auto by = gmsh_flags(d / "out/mesh.msh");
+    auto by = mfcheck::gmsh_flags(d / "out/mesh.msh");
     for (auto& [type, nb] : by) {
       INFO(type);
       CHECK(nb.second == 0);
