@@ -11,6 +11,7 @@ if [ -z "${RENDER_ONLY:-}" ]; then
   "$build/meshflow" run workflows/naca_wingtip.yaml
   "$build/meshflow" run workflows/wingtip_step.yaml
   "$build/meshflow" run workflows/wing_body_parametric.yaml
+  "$build/meshflow" run workflows/wing_body.yaml  # DLR-F6, ~2 min
   "$build/meshflow" run workflows/rotor67.yaml  # ~20 min on 2 cores, most of it optimise's untangling
 fi
 mkdir -p docs/img
@@ -33,6 +34,15 @@ done
 render ${VTU_DIR:-out}/wing-body-parametric/mesh.vtu docs/img/wing_body_junction.png --point 27.3 0 0 --normal 1 0 0 \
   --box 27.1 27.3 2.86 3.38 -0.6 -0.2 --up 0 0 1 \
   --title "wing-body junction cut at x = 27.3: body left, wing below; order 4, 10 x 10 layers"
+# DLR-F6 (mm; body along x, wing along -y, z up): a cut normal to the body through the
+# wing-fuselage junction near the trailing edge of the root (the wing's upper and lower junction
+# blocks, 10 x 10), and one through the wing tip (absolute coordinates)
+render ${VTU_DIR:-out}/wing-body/mesh.vtu docs/img/dlr_f6_junction.png --point 215.6 0 0 --normal 1 0 0 \
+  --box 214 217 -76 -52 -22 -2 --up 0 0 1 \
+  --title "DLR-F6: wing-fuselage junction under the wing (cut x = 215.6 mm), order 4, 10 x 10 layers"
+render ${VTU_DIR:-out}/wing-body/mesh.vtu docs/img/dlr_f6_tip.png --point 330 0 0 --normal 1 0 0 \
+  --box 328 332 -592 -572 44 60 --up 0 0 1 \
+  --title "DLR-F6: the wing tip (cut x = 330 mm), order 4, 10 layers"
 # Rotor 67 (axis x, feet): cuts normal to the axis through the hub junction just behind the blade's
 # leading edge and through the casing junction at the tip, radius (y) up (absolute coordinates)
 render ${VTU_DIR:-out}/rotor67/mesh.vtu docs/img/rotor67_hub.png --point 0 0 0 --normal -1 0 0 \
