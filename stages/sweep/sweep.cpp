@@ -1286,14 +1286,14 @@ void Builder::untangle(std::vector<std::vector<std::uint32_t>>& P) {
     for (auto k : prisms_of_img[i]) w = std::min(w, quality(k));
     return w;
   };
-  for (int sweep = 0; sweep < 20; ++sweep) {
+  for (int pass = 0; pass < 20; ++pass) {
     std::set<std::uint32_t> bad;
     for (std::size_t k = 0; k < P.size(); ++k)
       if (!(quality(k) > 0))
         for (int c = 0; c < 3; ++c)
           if (movable(P[k][c])) bad.insert(img.at(P[k][c]));
     if (bad.empty()) {
-      log("sweep: prisms untangled by placing " + std::to_string(R.placed) + " shell nodes");
+      log("sweep: prisms untangled by " + std::to_string(R.placed) + " placements of shell nodes");
       return;
     }
     bool changed = false;

@@ -150,7 +150,7 @@ struct Report {
   std::size_t prisms = 0, hexes = 0, junction_blocks = 0, edges_cut = 0;
   std::size_t end_caps = 0, cap_tets = 0, cap_pyramids = 0;  // junction ends on a third face (see above)
   std::size_t thinned = 0;  // node moves that thinned the layer to untangle prisms
-  std::size_t placed = 0;   // shell nodes placed by pattern search where smoothing failed (sweep.cpp, untangle)
+  std::size_t placed = 0;   // shell-node placements by pattern search where smoothing failed (sweep.cpp, untangle)
   // the near field's outer surface (sweep.cpp, clear_crossings): crossing face pairs found first
   // and left at the end, layer nodes thinned to clear them and the smallest height scale used
   long outer_crossings_before = 0, outer_crossings = 0;
