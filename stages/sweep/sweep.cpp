@@ -30,6 +30,24 @@ using namespace cad::vec;  // V3, v3, cv, add, sub, mul, dot, cross, norm
 constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
 
 V3 lerp(V3 a, V3 b, double s) { return add(a, mul(sub(b, a), s)); }
+
+// Compass pattern search for a node position: from b (value q), try the 26 neighbours at the
+// current step (those with inside(x)), move to the best one that raises value(x), halve the
+// step when none does; at most 40 rounds, while the step exceeds min_step. value(x) places the
+// node at x and measures; the node is left wherever value was last called: callers put it at b.
+template <class Inside, class Value>
+void pattern_search(V3& b, double& q, double step, double min_step, Inside inside, Value value) {
+  for (int it = 0; it < 40 && step > min_step; ++it) {
+    bool moved = false;
+    for (int d = 0; d < 27; ++d) {
+      if (d == 13) continue;  // (0, 0, 0)
+      V3 x{b[0] + (d % 3 - 1) * step, b[1] + (d / 3 % 3 - 1) * step, b[2] + (d / 9 - 1) * step};
+      if (!inside(x)) continue;
+      if (double qx = value(x); qx > q) q = qx, b = x, moved = true;
+    }
+    if (!moved) step *= 0.5;
+  }
+}
 V3 jv3(const nlohmann::json& j) { return {j.at(0).get<double>(), j.at(1).get<double>(), j.at(2).get<double>()}; }
 
 std::string fmt(V3 p) {
@@ -1301,19 +1319,11 @@ void Builder::untangle(std::vector<std::vector<std::uint32_t>>& P) {
       const V3 start = X(i);
       V3 w = X(wall_of.at(i)), b = start;
       const double len = norm(sub(b, w)), reach = 1.5 * len;
-      double q = around(i), step = 0.25 * len;
+      double q = around(i);
       auto put = [&](V3 x) { m.x[i] = x[0], m.y[i] = x[1], m.z[i] = x[2]; };
-      for (int it = 0; it < 40 && step > 1e-4 * len; ++it) {
-        bool moved = false;
-        for (int d = 0; d < 27; ++d) {
-          if (d == 13) continue;  // (0, 0, 0)
-          V3 x{b[0] + (d % 3 - 1) * step, b[1] + (d / 3 % 3 - 1) * step, b[2] + (d / 9 - 1) * step};
-          if (norm(sub(x, w)) > reach) continue;
-          put(x);
-          if (double qx = around(i); qx > q) q = qx, b = x, moved = true;
-        }
-        if (!moved) step *= 0.5;
-      }
+      pattern_search(
+          b, q, 0.25 * len, 1e-4 * len, [&](V3 x) { return norm(sub(x, w)) <= reach; },
+          [&](V3 x) { return put(x), around(i); });
       put(b);
       if (b != start) changed = true, ++R.placed;
     }
@@ -1633,18 +1643,9 @@ double Builder::place_cap(Cap& c) {
     if (norm(sub(start, xV)) > reach) continue;
     put(start);
     V3 b = start;
-    double q = cap_quality(c), step = step0;
-    for (int it = 0; it < 40 && step > 0; ++it) {
-      bool moved = false;
-      for (int d = 0; d < 27; ++d) {
-        if (d == 13) continue;  // (0, 0, 0)
-        V3 x{b[0] + (d % 3 - 1) * step, b[1] + (d / 3 % 3 - 1) * step, b[2] + (d / 9 - 1) * step};
-        if (norm(sub(x, xV)) > reach) continue;
-        put(x);
-        if (double qx = cap_quality(c); qx > q) q = qx, b = x, moved = true;
-      }
-      if (!moved) step *= 0.5;
-    }
+    double q = cap_quality(c);
+    pattern_search(
+        b, q, step0, 0.0, [&](V3 x) { return norm(sub(x, xV)) <= reach; }, [&](V3 x) { return put(x), cap_quality(c); });
     if (q > qb) qb = q, best = b;
   }
   put(best);
