@@ -14,13 +14,17 @@
 #include <utility>
 
 namespace mfcheck {
+// the output of tests/workflows/<script> FILE, which must exit 0
+inline std::string run_check(const std::string& script, const std::filesystem::path& file) {
+  auto r = mftest::sh(std::string(MESHFLOW_PYTHON) + " " + std::string(MESHFLOW_SOURCE_DIR) + "/tests/workflows/" + script + " " +
+                      file.string());
+  INFO(r.out);
+  REQUIRE(r.code == 0);
+  return r.out;
+}
 // per Gmsh element type name: {elements, elements with minJ/maxJ <= 0}
 inline std::map<std::string, std::pair<long, long>> gmsh_flags(const std::filesystem::path& msh) {
-  auto g = mftest::sh(std::string(MESHFLOW_PYTHON) + " " + std::string(MESHFLOW_SOURCE_DIR) +
-                      "/tests/workflows/gmsh_jacobian_check.py " + msh.string());
-  INFO(g.out);
-  REQUIRE(g.code == 0);
-  std::istringstream in(g.out);
+  std::istringstream in(run_check("gmsh_jacobian_check.py", msh));
   std::map<std::string, std::pair<long, long>> by;
   std::string name;
   long n = 0, b = 0;
@@ -29,11 +33,7 @@ inline std::map<std::string, std::pair<long, long>> gmsh_flags(const std::filesy
 }
 // per VTK Lagrange cell class: {cells, cells with det J <= 0 at a sample}
 inline std::map<std::string, std::pair<long, long>> vtk_flags(const std::filesystem::path& vtu) {
-  auto v = mftest::sh(std::string(MESHFLOW_PYTHON) + " " + std::string(MESHFLOW_SOURCE_DIR) +
-                      "/tests/workflows/vtk_lagrange_check.py " + vtu.string());
-  INFO(v.out);
-  REQUIRE(v.code == 0);
-  std::istringstream in(v.out);
+  std::istringstream in(run_check("vtk_lagrange_check.py", vtu));
   std::map<std::string, std::pair<long, long>> by;
   std::string cls;
   long cells = 0, bad = 0;
