@@ -1498,6 +1498,7 @@ void Builder::clear_crossings(const std::vector<std::vector<std::uint32_t>>& P, 
   } else if (last > 0) {
     m.x = X0, m.y = Y0, m.z = Z0;  // nothing was cleared: keep the layer as swept
     x0.clear(), scale.clear();
+    last = found;  // what is left is what was found (not the count of the attempt undone)
   }
   first = found;
   if (std::getenv("MESHFLOW_SWEEP_DEBUG"))
