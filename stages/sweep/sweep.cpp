@@ -1278,7 +1278,13 @@ void Builder::untangle(std::vector<std::vector<std::uint32_t>>& P) {
   // maximises the smallest scaled Jacobian of the prisms around it (each in the orientation
   // its wall triangle had before: a prism folded through the wall does not count as valid),
   // node by node in node order, until every prism is valid or a sweep over them changes
-  // nothing. The junction corners stay fixed.
+  // nothing. The junction corners stay fixed. When that leaves more prisms inverted than the
+  // smoothing did (the open U's caps, DLR-F6 with third_face_ends cap: 79 against 4), the
+  // smoothed layer is kept.
+  const std::vector<double> xs = m.x, ys = m.y, zs = m.z;
+  const std::size_t thinned_smoothed = R.thinned;
+  std::size_t bad_smoothed = 0;
+  for (auto& p : P) bad_smoothed += !either(p);
   m.x = x0, m.y = y0, m.z = z0;
   R.thinned = 0;
   for (auto& j : J)
@@ -1329,6 +1335,9 @@ void Builder::untangle(std::vector<std::vector<std::uint32_t>>& P) {
     }
     if (!changed) break;
   }
+  std::size_t bad_placed = 0;
+  for (auto& p : P) bad_placed += !either(p);
+  if (bad_placed > bad_smoothed) m.x = xs, m.y = ys, m.z = zs, R.thinned = thinned_smoothed, R.placed = 0;
 }
 
 // ── crossings of the near field's outer surface ────────────────────────────────────────
