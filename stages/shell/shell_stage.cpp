@@ -16,7 +16,6 @@
 #include <cstdlib>
 #include <chrono>
 #include <cmath>
-#include <functional>
 #include <map>
 #include <numeric>
 #include <optional>
@@ -241,7 +240,10 @@ struct Stage {
     // chains: junction edges connected through shared vertices (union-find on edge ids)
     std::vector<int> parent(ne);
     for (int e = 0; e < ne; ++e) parent[e] = e;
-    std::function<int(int)> find = [&](int a) { return parent[a] == a ? a : parent[a] = find(parent[a]); };
+    auto find = [&](int a) {
+      while (parent[a] != a) a = parent[a] = parent[parent[a]];
+      return a;
+    };
     for (int v = 0; v < nv; ++v)
       for (std::size_t k = 1; k < vjunctions[v].size(); ++k) {
         int a = find(vjunctions[v][0]), b = find(vjunctions[v][k]);

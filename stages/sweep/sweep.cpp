@@ -1262,8 +1262,16 @@ void Builder::untangle(std::vector<std::vector<std::uint32_t>>& P) {
   // junctions at the blade's sharp trailing edge, whose corners PC fan across the nose while
   // the blade's own directions flip), again from the start with the corners PC free to move too
   // (they are the images of the strip boundaries; the hexes are checked afterwards).
-  for (auto& j : J)
-    for (auto n : j.pc) fixed_img.insert(n);
+  auto fix_corners = [&] {
+    for (auto& j : J)
+      for (auto n : j.pc) fixed_img.insert(n);
+  };
+  auto inverted = [&] {
+    std::size_t n = 0;
+    for (auto& p : P) n += !either(p);
+    return n;
+  };
+  fix_corners();
   std::vector<double> x0 = m.x, y0 = m.y, z0 = m.z;
   if (round("")) return;
   m.x = x0, m.y = y0, m.z = z0;
@@ -1283,12 +1291,10 @@ void Builder::untangle(std::vector<std::vector<std::uint32_t>>& P) {
   // smoothed layer is kept.
   const std::vector<double> xs = m.x, ys = m.y, zs = m.z;
   const std::size_t thinned_smoothed = R.thinned;
-  std::size_t bad_smoothed = 0;
-  for (auto& p : P) bad_smoothed += !either(p);
+  const std::size_t bad_smoothed = inverted();
   m.x = x0, m.y = y0, m.z = z0;
   R.thinned = 0;
-  for (auto& j : J)
-    for (auto n : j.pc) fixed_img.insert(n);
+  fix_corners();
   std::vector<char> flip(P.size(), 0);
   const auto& fl = flip_of(model::Shape::Prism);
   for (std::size_t k = 0; k < P.size(); ++k) {
@@ -1335,9 +1341,7 @@ void Builder::untangle(std::vector<std::vector<std::uint32_t>>& P) {
     }
     if (!changed) break;
   }
-  std::size_t bad_placed = 0;
-  for (auto& p : P) bad_placed += !either(p);
-  if (bad_placed > bad_smoothed) m.x = xs, m.y = ys, m.z = zs, R.thinned = thinned_smoothed, R.placed = 0;
+  if (inverted() > bad_smoothed) m.x = xs, m.y = ys, m.z = zs, R.thinned = thinned_smoothed, R.placed = 0;
 }
 
 // ── crossings of the near field's outer surface ────────────────────────────────────────

@@ -274,15 +274,20 @@ UVMeshOutput mesh_uv(const UVMeshInput& in) {
   // and raises the worse 3D quality of the pair (Delaunay in the parameter plane is not
   // Delaunay on the surface where the parameterisation is anisotropic, e.g. a revolved tip
   // near its small end)
+  // edge (sorted node pair) -> the triangles that have it
+  auto edge_triangles = [&]() {
+    std::map<std::pair<int, int>, std::vector<int>> et;
+    for (int t = 0; t < static_cast<int>(out.tris.size()); ++t)
+      for (int k = 0; k < 3; ++k) {
+        int a = out.tris[t][k], b = out.tris[t][(k + 1) % 3];
+        et[{std::min(a, b), std::max(a, b)}].push_back(t);
+      }
+    return et;
+  };
   auto swaps = [&]() {
     int total = 0;
     for (int pass = 0; pass < 20; ++pass) {
-      std::map<std::pair<int, int>, std::vector<int>> et;
-      for (int t = 0; t < static_cast<int>(out.tris.size()); ++t)
-        for (int k = 0; k < 3; ++k) {
-          int a = out.tris[t][k], b = out.tris[t][(k + 1) % 3];
-          et[{std::min(a, b), std::max(a, b)}].push_back(t);
-        }
+      auto et = edge_triangles();
       int flips = 0;
       std::vector<char> done(out.tris.size(), 0);
       for (auto& [e, ts] : et) {
@@ -383,12 +388,7 @@ UVMeshOutput mesh_uv(const UVMeshInput& in) {
     // slivers fold into the tip's layer), the triangle's third edge (a, b) is flipped instead
     // when the quad with the triangle across it is convex in (u,v).
     {
-      std::map<std::pair<int, int>, std::vector<int>> et;
-      for (int t = 0; t < static_cast<int>(out.tris.size()); ++t)
-        for (int k = 0; k < 3; ++k) {
-          int a = out.tris[t][k], b = out.tris[t][(k + 1) % 3];
-          et[{std::min(a, b), std::max(a, b)}].push_back(t);
-        }
+      auto et = edge_triangles();
       std::vector<char> done(out.tris.size(), 0);
       for (int t = 0; t < static_cast<int>(out.tris.size()); ++t) {
         if (done[t]) continue;
