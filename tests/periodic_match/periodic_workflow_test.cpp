@@ -23,12 +23,6 @@ int run(const fs::path& wf, const fs::path& dir) {
   if (rc != 0) MESSAGE(mftest::read_text(dir / "log"));
   return rc;
 }
-nlohmann::json stage_stats(const fs::path& out, const std::string& stage) {
-  nlohmann::json r = nlohmann::json::parse(mftest::read_text(out / "report.json"));
-  for (auto& s : r.at("stages"))
-    if (s.value("name", "") == stage) return s.value("stats", nlohmann::json::object());
-  return nlohmann::json::object();
-}
 }  // namespace
 
 TEST_CASE("meshflow run: naca_wing with periodic box sides -> balance -> periodic_match (translation, equal divisions)") {
@@ -53,7 +47,7 @@ TEST_CASE("meshflow run: naca_wing with periodic box sides -> balance -> periodi
   CHECK(m.faces.size() == 1);
   CHECK(m.edges.size() == 4);
   CHECK(m.max_mismatch < 1e-9 * m.model_size);
-  nlohmann::json st = stage_stats(dir / "out", "periodic_match");
+  nlohmann::json st = mftest::stage_stats(dir / "out", "periodic_match");
   MESSAGE("periodic_match stats: " << st.dump());
   if (!st.empty()) {
     CHECK(st["divisions"]["checked"] == true);
@@ -78,7 +72,7 @@ TEST_CASE("meshflow run: workflows/rotor67.yaml matches the periodic sides by th
   CHECK(std::abs(m.transform.angle - 2 * M_PI / 22) < 1e-15);
   CHECK(m.faces.size() == 1);
   CHECK(m.face_mismatch < 1e-12 * m.model_size);
-  auto st = stage_stats(dir / "out", "periodic_match");
+  auto st = mftest::stage_stats(dir / "out", "periodic_match");
   MESSAGE("rotor67 periodic_match stats: " << st.dump());
   CHECK(st["divisions"]["checked"] == true);  // the workflow runs balance: paired edges have equal divisions
   fs::remove_all(dir);

@@ -7,6 +7,7 @@
 #include <stdexcept>
 
 #include <doctest/doctest.h>
+#include <nlohmann/json.hpp>
 
 #include <algorithm>
 #include <array>
@@ -105,6 +106,15 @@ Cli run_cli(std::vector<std::string> args) {
   std::cout.rdbuf(o);
   std::cerr.rdbuf(e);
   return {code, out.str(), err.str()};
+}
+
+nlohmann::json stage_stats(const nlohmann::json& report, const std::string& stage) {
+  for (auto& s : report.at("stages"))
+    if (s.value("name", "") == stage) return s.value("stats", nlohmann::json::object());
+  return nlohmann::json::object();
+}
+nlohmann::json stage_stats(const fs::path& out, const std::string& stage) {
+  return stage_stats(nlohmann::json::parse(read_text(out / "report.json")), stage);
 }
 
 std::string workflow_without(const fs::path& src, const fs::path& dst, const std::vector<std::string>& drop) {

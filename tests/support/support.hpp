@@ -4,6 +4,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <filesystem>
+#include <nlohmann/json_fwd.hpp>
 #include <string>
 #include <vector>
 
@@ -20,6 +21,11 @@ std::string read_text(const fs::path& p);                      // "" if unreadab
 // real workflow; relative `file:` paths are made absolute (they are relative to src's folder).
 // Returns dst as a string.
 std::string workflow_without(const fs::path& src, const fs::path& dst, const std::vector<std::string>& drop);
+
+// The `stats` of the stage named `stage` in a run's report.json (parsed, or in the output folder
+// `out`); an empty object when the report has no such stage or it has no stats.
+nlohmann::json stage_stats(const nlohmann::json& report, const std::string& stage);
+nlohmann::json stage_stats(const fs::path& out, const std::string& stage);
 
 // Starts argv[0] with argv (stdout and stderr to `log`); returns the pid.
 int spawn(const std::vector<std::string>& argv, const fs::path& log);

@@ -22,13 +22,6 @@
 namespace {
 namespace fs = std::filesystem;
 
-nlohmann::json stage_stats(const fs::path& out, const std::string& stage) {
-  auto r = nlohmann::json::parse(mftest::read_text(out / "report.json"));
-  for (auto& s : r.at("stages"))
-    if (s.value("name", "") == stage) return s.value("stats", nlohmann::json::object());
-  return nlohmann::json::object();
-}
-
 // runs the ledge workflow up to `last` (sweep or tet); returns the output folder. With `result`,
 // the run's exit code and output go there instead of being required to succeed.
 fs::path run_ledge(const std::string& tag, bool open_u, const std::string& last, mftest::ShellResult* result = nullptr,
@@ -63,7 +56,7 @@ fs::path run_ledge(const std::string& tag, bool open_u, const std::string& last,
 
 // the shell's face-width limit acted at the ledge: th <= 0.5 x 0.2, the requested 0.5 elsewhere
 void check_shell(const fs::path& out) {
-  auto st = stage_stats(out, "shell");
+  auto st = mftest::stage_stats(out, "shell");
   REQUIRE(st.contains("not_honoured"));
   REQUIRE(st["not_honoured"].contains("limited_by_face_width"));
   auto lim = st["not_honoured"]["limited_by_face_width"];
@@ -102,7 +95,7 @@ TEST_CASE("junction along a ledge narrower than its strip (closed ring): thickne
   fs::path out = run_ledge("jw-ring", false, "tet");
   check_shell(out);
   check_mesh(out / "mesh.msh");
-  auto sw = stage_stats(out, "sweep");
+  auto sw = mftest::stage_stats(out, "sweep");
   CHECK(sw.at("mesh").at("elements").at("hex").get<long>() > 0);
 }
 
@@ -122,7 +115,7 @@ TEST_CASE("junction along a ledge narrower than its strip (open U, junction ends
   CHECK(r.out.find("is used by 4 faces") == std::string::npos);
   check_shell(out);
   check_mesh(out / "mesh.msh");
-  auto sw = stage_stats(out, "sweep");
+  auto sw = mftest::stage_stats(out, "sweep");
   MESSAGE("sweep: " << sw.at("sweep").dump());
   CHECK(sw.at("sweep").at("end_caps").get<int>() == 2);
   // per end: one tet per prism of the fan at the vertex, one pyramid each plus the pocket's
@@ -145,14 +138,14 @@ TEST_CASE("open U with shell.third_face_ends averaged (the default): the chain e
   fs::path out = run_ledge("jw-u-avg", true, "split", &r);
   INFO(r.out);
   REQUIRE(r.code == 0);
-  auto sh = stage_stats(out, "shell");
+  auto sh = mftest::stage_stats(out, "shell");
   REQUIRE(sh.contains("junction_chains_averaged"));
   auto chains = sh.at("junction_chains_averaged");
   MESSAGE("shell: " << chains.dump());
   REQUIRE(chains.size() >= 1);
   for (auto& c : chains) CHECK(c.at("edges").size() >= 1);
   CHECK(sh.at("counts").at("hex_junction_blocks").get<long>() == 0);  // the U's chain is its only junction
-  auto sw = stage_stats(out, "sweep");
+  auto sw = mftest::stage_stats(out, "sweep");
   CHECK(sw.at("sweep").at("end_caps").get<int>() == 0);
   CHECK(sw.at("mesh").at("invalid").get<int>() == 0);
   auto lin = meshflow::io::read_mesh(out / "mesh.msh");

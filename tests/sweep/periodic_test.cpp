@@ -49,13 +49,6 @@ outputs:
   mesh: {from: tet}
 )";
 
-nlohmann::json stage_stats(const fs::path& out, const std::string& stage) {
-  nlohmann::json r = nlohmann::json::parse(mftest::read_text(out / "report.json"));
-  for (auto& s : r.at("stages"))
-    if (s.value("name", "") == stage) return s.value("stats", nlohmann::json::object());
-  return nlohmann::json::object();
-}
-
 // The faces of `m` classified on (2, tag), as sorted node triples (so a triangle matches its
 // image whatever its orientation and first node).
 std::set<std::array<std::uint32_t, 3>> face_tris(const Mesh& m, int tag) {
@@ -177,7 +170,7 @@ TEST_CASE("sweep with periodic_match: the periodic_hi side is the image of perio
   CHECK(w_near <= 1e-12 * pm.model_size);
   CHECK(w_mesh <= 1e-12 * pm.model_size);
 
-  nlohmann::json st = stage_stats(out, "sweep");
+  nlohmann::json st = mftest::stage_stats(out, "sweep");
   INFO(st.dump());
   CHECK(st.at("sweep").at("periodic_faces_copied") == 1);
   CHECK(st.at("sweep").at("periodic_pairs").get<std::size_t>() > 100);
@@ -230,7 +223,7 @@ TEST_CASE("workflows/rotor67.yaml through tet: valid conforming linear hybrid me
   // 14 on the finer lattice the curved blade is sampled on), none after the shell's thinning
   // (one round; sweep's face mesher used to leave slivers on the blade beside the tip strip,
   // one of whose prisms then stayed inverted)
-  nlohmann::json sh = stage_stats(out, "shell");
+  nlohmann::json sh = mftest::stage_stats(out, "shell");
   INFO(sh.dump());
   CHECK(sh.at("counts").at("hex_junction_blocks").get<int>() == 2);
   CHECK(sh.at("faces_unsampled").get<int>() == 0);
@@ -240,7 +233,7 @@ TEST_CASE("workflows/rotor67.yaml through tet: valid conforming linear hybrid me
   // the blade's layer fans into the hub's and casing's around its leading and trailing edges:
   // sweep found crossings of the outer surface and cleared every one by thinning (without it
   // TetGen aborts on this surface)
-  nlohmann::json sw = stage_stats(out, "sweep").at("sweep");
+  nlohmann::json sw = mftest::stage_stats(out, "sweep").at("sweep");
   INFO(sw.dump());
   CHECK(sw.at("outer_crossings_before").get<long>() > 0);
   CHECK(sw.at("outer_crossings").get<long>() == 0);
