@@ -22,8 +22,11 @@ using nlohmann::json;
 namespace meshflow {
 namespace {
 
-// Exit codes: 0 success, 1 a stage or a check failed, 2 bad input (workflow, arguments).
-constexpr int kFailed = 1, kBadInput = 2;
+// Exit codes: 0 success, 1 a stage or a check failed, 2 bad input (workflow, arguments),
+// 3 a mesh breaks the contract (invalid, degenerate, non-conforming, untagged, not covering
+// the CAD or not filling its volume): outputs are written for inspection, report.json lists
+// the problems.
+constexpr int kFailed = 1, kBadInput = 2, kInvalid = 3;
 
 std::string commands_footer() {
   std::string s;
@@ -118,11 +121,15 @@ int cli_main(int argc, char** argv) {
 
   CLI::App app{"meshflow: valid high-order curvilinear hybrid meshes for CFD, from a workflow file"};
   app.require_subcommand(1);
-  app.footer(commands_footer());
+  app.footer(commands_footer() +
+             "\n\nExit codes: 0 success; 1 a stage failed or `check` found differences; 2 bad input (workflow, "
+             "arguments); 3 a mesh breaks the contract (invalid, degenerate, non-conforming or untagged elements, CAD faces "
+             "not covered, volume not filled): outputs are written for inspection and report.json lists the problems.");
   std::string workflow_file, stage, cache_dir, out_dir, max_size;
   std::vector<std::string> sets;
   int jobs = 0, threads = 0;
   bool verbose = false, dot = false, update = false, verify = false, repair = false, json_out = false;
+  bool allow_invalid = false;
   double max_age_days = -1, grace = 3600;
 
   auto add_common = [&](CLI::App* sc, bool with_run_opts) {
@@ -135,6 +142,10 @@ int cli_main(int argc, char** argv) {
       sc->add_option("--out", out_dir, "output folder (default: out/<workflow name>/)");
       sc->add_flag("-v,--verbose", verbose, "show each stage's log lines");
     }
+    if (sc->get_name() == "run")
+      sc->add_flag("--allow-invalid", allow_invalid,
+                   "debugging: accept meshes that break the contract (exit 0, report.json \"invalid_accepted\"); "
+                   "check and golden never accept them");
   };
   auto* run = app.add_subcommand("run", "run the stale stages of a workflow, write outputs and report.json");
   add_common(run, true);
@@ -306,8 +317,9 @@ int cli_main(int argc, char** argv) {
     ro.jobs = jobs;
     ro.threads = threads;
     ro.verbose = verbose;
+    ro.allow_invalid = allow_invalid && run->parsed();
     RunResult rr = run_workflow(wf, ro);
-    if (!rr.ok) return kFailed;
+    if (!rr.ok) return rr.failed ? kFailed : kInvalid;
     if (run->parsed()) return 0;
     json summary = golden_summary(wf, rr);
     fs::path gfile = wf.golden->dir / "summary.json";

@@ -323,6 +323,36 @@ std::string disk_hint(const fs::path& root) {
 }
 
 // One human line of a stage's stats.mesh (the engine knows the field names, not meshes).
+// The contract problems a stage listed in its stats (an empty array when none).
+json problems_of(const json& stats) {
+  if (stats.is_object() && stats.contains("problems") && stats["problems"].is_array()) return stats["problems"];
+  return json::array();
+}
+bool has_blocking(const json& problems) {
+  for (auto& p : problems)
+    if (p.is_object() && p.value("blocking", false)) return true;
+  return false;
+}
+
+// "split: validity: 37 element(s) with det J <= 0 somewhere; the worst, element 1234 (prism4), at (x, y, z)"
+std::string problem_line(const std::string& stage, const json& p) {
+  std::ostringstream s;
+  s << stage << ": " << p.value("clause", std::string("?")) << ": " << p.value("what", std::string());
+  if (p.contains("where") && p["where"].is_array() && !p["where"].empty()) {
+    const json& w = p["where"][0];
+    s << "; first listed";
+    if (w.contains("element")) s << ": element " << w["element"].dump();
+    if (w.contains("type")) s << " (" << w["type"].get<std::string>() << ")";
+    if (w.contains("face_of")) s << ": face of element(s) " << w["face_of"].dump();
+    if (w.contains("cad_face")) s << ": CAD face " << w["cad_face"].dump() << " (" << w.value("group", std::string()) << ")";
+    if (w.contains("at") && w["at"].is_array() && w["at"].size() == 3)
+      s << std::setprecision(6) << " at (" << w["at"][0].get<double>() << ", " << w["at"][1].get<double>() << ", "
+        << w["at"][2].get<double>() << ")";
+  }
+  if (p.contains("hint") && p["hint"].is_string()) s << ". " << p["hint"].get<std::string>();
+  return s.str();
+}
+
 std::string mesh_line(const std::string& stage, const json& m) {
   std::ostringstream s;
   auto num = [&](const char* k) { return m.contains(k) && m[k].is_number() ? m[k].get<double>() : NAN; };
@@ -363,7 +393,17 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
   std::map<size_t, std::string> waiting_on;
   const auto t0 = Clock::now();
   size_t finished = 0;
-  bool any_failed = false;
+  bool any_failed = false, any_invalid = false;
+  // A stage's result is delivered when an output is materialised from it or no stage needs it:
+  // a contract problem there fails the run even when it is repairable by a later stage.
+  std::vector<bool> delivered(wf.stages.size(), true);
+  for (auto& s : wf.stages)
+    for (auto& n : s.needs)
+      for (size_t i = 0; i < wf.stages.size(); ++i)
+        if (wf.stages[i].name == n) delivered[i] = false;
+  for (auto& o : wf.outputs)
+    for (size_t i = 0; i < wf.stages.size(); ++i)
+      if (wf.stages[i].name == o.from) delivered[i] = true;
 
   auto secs = [](Clock::time_point a) { return std::chrono::duration<double>(Clock::now() - a).count(); };
   auto status_line = [&]() {
@@ -388,9 +428,19 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
     auto& r = results[wf.stages[i].name];
     r.status = status;
     if (status == "failed") any_failed = true;
+    const json problems = problems_of(r.stats);
+    const bool invalid = !problems.empty() && (has_blocking(problems) || delivered[i]);
     if (status == "ran") line("  ran     " + r.name + " (" + fmt(r.seconds, 2) + " s, " + fmt(r.peak_rss_mb, 0) + " MB)");
     else if (status == "cached") line("  cached  " + r.name);
     else if (status == "failed") line("  FAILED  " + r.name);
+    for (auto& p : problems)
+      line(std::string(invalid ? "  INVALID " : "  note    ") + problem_line(r.name, p) +
+           (invalid ? "" : " (not delivered: a later stage may repair it)"));
+    if (invalid) {
+      r.computed = status;
+      r.status = "invalid";
+      any_invalid = true;
+    }
   };
 
   // Reads what a stage process sent: progress (P), log (L) and error (E) lines.
@@ -432,9 +482,10 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
         size_t ni = size_t(std::find_if(wf.stages.begin(), wf.stages.end(), [&](auto& s) { return s.name == n; }) - wf.stages.begin());
         if (state[ni] != Done) ready = false;
         else if (nr.status == "failed" || nr.status == "skipped") blocked = true;
+        else if (nr.status == "invalid" && has_blocking(problems_of(nr.stats)) && !opt.allow_invalid) blocked = true;
       }
       if (blocked) {
-        results[d.name].error = "not run: a stage it needs failed";
+        results[d.name].error = "not run: a stage it needs failed or broke its contract";
         finish(i, "skipped");
         continue;
       }
@@ -590,8 +641,10 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
   }
   if (tty) out << "\r\033[K";
 
-  rr.ok = !any_failed;
+  rr.invalid = any_invalid;
+  rr.ok = !any_failed && (!any_invalid || opt.allow_invalid);
   json stages = json::array();
+  json all_problems = json::array();
   for (auto& d : wf.stages) {
     auto& r = results[d.name];
     rr.stages.push_back(r);
@@ -600,18 +653,32 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
               {"seconds", r.seconds}, {"peak_rss_mb", r.peak_rss_mb},
               {"stats", r.stats}};
     if (!r.error.empty()) s["error"] = r.error;
+    if (!r.computed.empty()) s["computed"] = r.computed;
     stages.push_back(s);
+    if (r.status == "invalid")
+      for (auto p : problems_of(r.stats)) {
+        p["stage"] = r.name;
+        all_problems.push_back(std::move(p));
+      }
   }
-  rr.report = {{"workflow", wf.name}, {"file", wf.file.string()}, {"ok", rr.ok}, {"stages", stages},
-               {"seconds", secs(t0)}, {"outputs", json::object()}};
+  rr.report = {{"workflow", wf.name}, {"file", wf.file.string()}, {"ok", rr.ok},          {"invalid", rr.invalid},
+               {"problems", all_problems}, {"stages", stages}, {"seconds", secs(t0)}, {"outputs", json::object()}};
+  if (rr.invalid && opt.allow_invalid) rr.report["invalid_accepted"] = true;
+
+  // The summary's first line says when the mesh breaks the contract, and where.
+  if (rr.invalid) {
+    out << "\n" << (opt.allow_invalid ? "INVALID (accepted by --allow-invalid)" : "INVALID")
+        << ": the mesh breaks the contract (" << all_problems.size() << " problem(s); report.json lists them)\n";
+    for (auto& p : all_problems) out << "  " << problem_line(p["stage"].get<std::string>(), p) << "\n";
+  }
 
   // Summary table.
   out << "\n" << std::left << std::setw(16) << "stage" << std::setw(14) << "kind" << std::setw(8) << "status" << std::right
       << std::setw(9) << "seconds" << std::setw(9) << "peak MB" << "  key\n";
   for (auto& r : rr.stages)
     out << std::left << std::setw(16) << r.name << std::setw(14) << r.kind << std::setw(8) << r.status << std::right
-        << std::setw(9) << (r.status == "ran" ? fmt(r.seconds, 2) : "-") << std::setw(9)
-        << (r.status == "ran" ? fmt(r.peak_rss_mb, 0) : "-") << "  " << r.key.substr(0, 12) << "\n";
+        << std::setw(9) << (r.peak_rss_mb > 0 ? fmt(r.seconds, 2) : "-") << std::setw(9)
+        << (r.peak_rss_mb > 0 ? fmt(r.peak_rss_mb, 0) : "-") << "  " << r.key.substr(0, 12) << "\n";
   for (auto& r : rr.stages)
     if (r.stats.contains("mesh") && r.stats["mesh"].is_object()) out << mesh_line(r.name, r.stats["mesh"]) << "\n";
 
@@ -619,7 +686,11 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
     rr.out_dir = opt.out_dir.empty() ? fs::current_path() / "out" / wf.name : fs::absolute(opt.out_dir);
     try {
       fs::create_directories(rr.out_dir);
-      if (rr.ok) materialise(wf, rr, rr.out_dir, rr.report["outputs"]);
+      // An invalid mesh is written too, so that the user can look at it; report.json marks it.
+      if (!any_failed) materialise(wf, rr, rr.out_dir, rr.report["outputs"]);
+      for (auto& o : wf.outputs)
+        if (results[o.from].status == "invalid" && rr.report["outputs"].contains(o.name))
+          rr.report["outputs"][o.name]["invalid"] = true;
     } catch (const std::exception& e) {
       rr.ok = false;
       rr.report["ok"] = false;
@@ -628,16 +699,20 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
     }
     try {
       atomic_write(rr.out_dir / "report.json", rr.report.dump(2) + "\n", {}, /*durable=*/false);
-      out << "outputs: " << rr.out_dir.string() << " (report.json";
+      out << (rr.invalid ? "outputs (INVALID mesh, written for inspection): " : "outputs: ") << rr.out_dir.string() << " (report.json";
       for (auto& [n, o] : rr.report["outputs"].items())
         for (auto& f : o["files"]) out << ", " << f.get<std::string>();
       out << ")\n";
     } catch (const std::exception& e) {
       rr.ok = false;
+      rr.report["error"] = e.what();
       err << "error: cannot write " << (rr.out_dir / "report.json").string() << ": " << e.what() << "\n";
     }
   }
-  out << (rr.ok ? "ok" : "FAILED") << " in " << fmt(secs(t0), 2) << " s\n" << std::flush;
+  rr.failed = !rr.ok && !(rr.invalid && !opt.allow_invalid && !any_failed && !rr.report.contains("error"));
+  out << (rr.failed ? "FAILED" : !rr.ok ? "INVALID" : rr.invalid ? "ok (INVALID mesh accepted)" : "ok") << " in "
+      << fmt(secs(t0), 2) << " s\n"
+      << std::flush;
   return rr;
 }
 

@@ -25,13 +25,17 @@ struct RunOptions {
   int threads = 0;                  // total thread budget; 0 = number of cores
   bool materialise = true;          // write outputs and report.json
   bool verbose = false;             // stage log lines as they come
+  // Accept results that break their contract (stats.problems): downstream stages run on them
+  // and the run counts as ok, marked "invalid_accepted". For debugging; never the default.
+  bool allow_invalid = false;
   std::ostream* out = nullptr;      // progress and summary (default std::cout)
   std::ostream* err = nullptr;      // error paragraphs (default std::cerr)
 };
 
 struct StageResult {
   std::string name, kind;
-  std::string status = "skipped";  // ran | cached | failed | skipped
+  std::string status = "skipped";  // ran | cached | invalid | failed | skipped
+  std::string computed;            // an invalid result: how it was obtained (ran | cached)
   std::string key, error;
   double seconds = 0, peak_rss_mb = 0;
   nlohmann::json stats = nlohmann::json::object();
@@ -40,6 +44,10 @@ struct StageResult {
 
 struct RunResult {
   bool ok = false;
+  // Some stage's result breaks its contract (status "invalid"): the run is not ok unless
+  // allow_invalid accepted it. Exit code kExitInvalid (cli), distinct from a failed stage.
+  bool invalid = false;
+  bool failed = false;  // a stage failed, or the outputs or report.json could not be written
   std::vector<StageResult> stages;  // in topological order
   nlohmann::json report;
   std::filesystem::path out_dir;

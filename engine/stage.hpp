@@ -83,6 +83,14 @@ class StageContext {
   virtual void log(const std::string& line) = 0;
   // Free-form statistics of this run (an object); stored with the action entry and shown in
   // report.json. Mesh-producing stages put the mesh statistics under "mesh".
+  // The result's contract: a stage whose output breaks what it promises (a mesh with inverted,
+  // degenerate or untagged elements, ...) still writes it and lists the breaches under
+  // "problems": an array of {"clause", "what", "count", "blocking", "where": [...], "hint"}.
+  // The result is cached like any other (it is deterministic), but the engine gives the stage
+  // the status "invalid" when a problem is blocking (no later stage can repair it: the stages
+  // that need it are not run) or when the stage's result is delivered (an output, or no stage
+  // needs it); the run then is not a success. A non-blocking problem of an intermediate result
+  // (e.g. curving's inverted elements, which optimise repairs) is reported and passed on.
   virtual nlohmann::json& stats() = 0;
   // Number of threads this stage may use (the runner's budget for it).
   virtual int threads() const = 0;

@@ -2,6 +2,7 @@
 // the order-P "mesh" (curve.hpp) with stats.mesh (model::mesh_stats) and stats.curve.
 #include "engine/stage.hpp"
 #include "stages/cad/cad.hpp"
+#include "stages/contract/contract.hpp"
 #include "stages/curve/curve.hpp"
 #include "stages/io/mesh_io.hpp"
 #include "stages/model/quality.hpp"
@@ -32,7 +33,8 @@ void run(StageContext& ctx) {
   ctx.progress(0.8, "writing");
   io::write_mesh(out, ctx.output("mesh", "mesh"), io::MeshFormat::MshBinary);
   ctx.progress(0.9, "statistics");
-  ctx.stats()["mesh"] = model::mesh_stats(out, ctx.threads());
+  contract::record(ctx, out, contract::Extent::Domain, &shape,
+                   "curving inverted them; optimise (untangle: true) repairs such elements, or a thinner shell / lower order avoids them");
   ctx.stats()["curve"] = rep.to_json();
   ctx.progress(1.0, "done");
 }

@@ -1509,7 +1509,9 @@ std::vector<std::vector<ElementQuality>> mesh_quality(const Mesh& m, int threads
   return res;
 }
 
-nlohmann::json mesh_stats(const Mesh& m, int threads) {
+nlohmann::json mesh_stats(const Mesh& m, int threads) { return mesh_stats(m, mesh_quality(m, threads), build_topology(m)); }
+
+nlohmann::json mesh_stats(const Mesh& m, const std::vector<std::vector<ElementQuality>>& q, const Topology& topo) {
   using nlohmann::json;
   json j;
   const int dim = m.dimension();
@@ -1540,7 +1542,6 @@ nlohmann::json mesh_stats(const Mesh& m, int threads) {
   j["by_type"] = by_type;
   j["groups"] = groups;
 
-  auto q = mesh_quality(m, threads);
   std::size_t invalid = 0, inconclusive = 0, sampled = 0, total = 0;
   std::vector<double> sj;
   double max_ar = 0, volume = 0;
@@ -1576,7 +1577,7 @@ nlohmann::json mesh_stats(const Mesh& m, int threads) {
   j["invalid"] = invalid;
   j["invalid_elements"] = invalid_tags;
   j["inconclusive"] = inconclusive;
-  j["nonconforming_faces"] = build_topology(m).nonconforming_faces;
+  j["nonconforming_faces"] = topo.nonconforming_faces;
   double mn = 1, med = 1;
   if (!sj.empty()) {
     mn = *std::min_element(sj.begin(), sj.end());

@@ -56,6 +56,7 @@
 #pragma once
 
 #include "stages/model/mesh.hpp"
+#include "stages/model/topology.hpp"
 
 #include <nlohmann/json_fwd.hpp>
 
@@ -94,5 +95,7 @@ std::vector<std::vector<ElementQuality>> mesh_quality(const Mesh& m, int threads
 //    "histograms": {"scaled_jacobian": {edges, counts}, "aspect_ratio": {...}},
 //    "validity_method", "bbox", "fingerprint"}
 nlohmann::json mesh_stats(const Mesh& m, int threads = 0);
+// The same from the quality and topology already computed (the mesh contract needs both).
+nlohmann::json mesh_stats(const Mesh& m, const std::vector<std::vector<ElementQuality>>& q, const Topology& topo);
 
 }  // namespace meshflow::model

@@ -2,6 +2,7 @@
 // surface nodes (optimise.hpp), writes the "mesh" and stats.optimise + stats.mesh.
 #include "engine/stage.hpp"
 #include "stages/cad/cad.hpp"
+#include "stages/contract/contract.hpp"
 #include "stages/io/mesh_io.hpp"
 #include "stages/model/quality.hpp"
 #include "stages/optimise/optimise.hpp"
@@ -54,7 +55,9 @@ void run(StageContext& ctx) {
   ctx.progress(0.7, "writing");
   io::write_mesh(m, ctx.output("mesh", "mesh"), io::MeshFormat::MshBinary);
   ctx.progress(0.8, "quality");
-  ctx.stats()["mesh"] = model::mesh_stats(m, ctx.threads());
+  contract::record(ctx, m, contract::Extent::Domain, &shape,
+                   "optimise could not repair them: see stats.optimise.untangle; a thinner shell (shell.thickness), a lower "
+                   "curve.order or a larger untangle_rings may help");
   ctx.stats()["optimise"] = r.to_json();
   if (do_untangle) ctx.stats()["optimise"]["untangle"] = ur.to_json();
   std::ostringstream s;

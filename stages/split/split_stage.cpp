@@ -1,6 +1,7 @@
 // The "split" stage kind: reads a "mesh" artifact, splits its near-field macro elements
 // (split.hpp), writes a "mesh" artifact and stats.mesh + stats.split.
 #include "engine/stage.hpp"
+#include "stages/contract/contract.hpp"
 #include "stages/io/mesh_io.hpp"
 #include "stages/model/quality.hpp"
 #include "stages/split/split.hpp"
@@ -49,7 +50,7 @@ void run(StageContext& ctx) {
   ctx.progress(0.6, "writing");
   io::write_mesh(r.mesh, ctx.output("mesh", "mesh"), io::MeshFormat::MshBinary);
   ctx.progress(0.7, "quality");
-  ctx.stats()["mesh"] = model::mesh_stats(r.mesh, ctx.threads());
+  contract::record(ctx, r.mesh, contract::Extent::Domain, nullptr);
   ctx.stats()["split"] = to_json(r.stats);
   std::ostringstream s;
   s << "split: " << r.stats.macro_prisms << " macro prisms, "

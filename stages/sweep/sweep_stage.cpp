@@ -3,6 +3,7 @@
 #include "engine/stage.hpp"
 #include "stages/balance/balance.hpp"
 #include "stages/cad/cad.hpp"
+#include "stages/contract/contract.hpp"
 #include "stages/io/mesh_io.hpp"
 #include "stages/model/quality.hpp"
 #include "stages/periodic_match/periodic.hpp"
@@ -58,12 +59,12 @@ void run(StageContext& ctx) {
   model::Mesh m = sweep_mesh(shape, sh, div, o, rep, [&](const std::string& l) { ctx.log(l); }, match ? &*match : nullptr);
   ctx.progress(0.85, "checking");
   m.check();
-  nlohmann::json ms = model::mesh_stats(m, ctx.threads());
+  contract::record(ctx, m, contract::Extent::NearField, &shape);
+  const nlohmann::json& ms = ctx.stats()["mesh"];
   if (ms.value("invalid", 0) > 0)
     throw StageError("sweep: " + std::to_string(ms.value("invalid", 0)) + " invalid near-field elements (" +
                      ms.at("invalid_elements").dump() + "); reduce shell.thickness");
   io::write_mesh(m, ctx.output("mesh", "mesh"), io::MeshFormat::MshBinary);
-  ctx.stats()["mesh"] = ms;
   ctx.stats()["sweep"] = rep.to_json();
   ctx.log("sweep: " + std::to_string(rep.prisms) + " prisms, " + std::to_string(rep.hexes) + " junction hexes, " +
           std::to_string(rep.wall_triangles) + " wall triangles, " + std::to_string(rep.boundary_triangles) +

@@ -1,6 +1,7 @@
 // meshflow stage kind `tet` (paper §III.D): reads the near-field "mesh" artifact (sweep's),
 // fills the far field with TetGen (tet.hpp) and writes the whole linear hybrid mesh.
 #include "engine/stage.hpp"
+#include "stages/contract/contract.hpp"
 #include "stages/io/mesh_io.hpp"
 #include "stages/tet/tet.hpp"
 #include "stages/tet/tetgen_call.hpp"
@@ -37,7 +38,7 @@ void run(StageContext& ctx) {
   model::Mesh out = fill_far_field(near, opt, rep, [&](const std::string& l) { ctx.log(l); });
   ctx.progress(0.9, "writing the mesh");
   io::write_mesh(out, ctx.output("mesh", "mesh"), io::MeshFormat::MshBinary);
-  ctx.stats()["mesh"] = rep.mesh_stats;
+  contract::record(ctx, out, contract::Extent::Domain, nullptr);
   nlohmann::json t = rep.to_json();
   t["radius_edge"] = opt.radius_edge;
   t["min_dihedral_deg"] = opt.min_dihedral;

@@ -134,6 +134,29 @@ meshflow::StageRegistrar cat({.kind = "t_cat",
                               .schema = R"({"type":"object","additionalProperties":false,"properties":{
                                 "suffix":{"type":"string","default":"","description":"appended text"}}})"});
 
+// Concatenates like t_cat and reports a contract problem (blocking or not), as a mesh stage
+// does for a mesh that breaks the contract: the engine's handling of "problems".
+meshflow::StageRegistrar flawed({.kind = "t_flawed",
+                                 .version = 1,
+                                 .summary = "concatenates and reports a contract problem",
+                                 .libraries = {},
+                                 .run =
+                                     [](meshflow::StageContext& ctx) {
+                                       record_call(ctx);
+                                       std::string s;
+                                       for (auto& a : ctx.inputs()) s += mftest::read_text(a.path);
+                                       s += "-flawed";
+                                       mftest::write_text(ctx.output("blob", "t_blob"), s);
+                                       ctx.stats()["problems"] = nlohmann::json::array(
+                                           {{{"clause", "validity"},
+                                             {"what", "2 element(s) with det J <= 0 somewhere"},
+                                             {"count", 2},
+                                             {"blocking", ctx.params()["blocking"].get<bool>()},
+                                             {"where", {{{"element", 17}, {"type", "tet4"}, {"at", {0.5, 0.25, 1.0}}}}}}});
+                                     },
+                                 .schema = R"({"type":"object","additionalProperties":false,"properties":{
+                                "blocking":{"type":"boolean","default":false,"description":"no later stage can repair it"}}})"});
+
 // Writes `chunks` chunks of 64 KiB, sleeping `ms` between them: a stage to kill mid-write.
 meshflow::StageRegistrar slow({.kind = "t_slow",
                                .version = 1,

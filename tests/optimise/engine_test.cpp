@@ -76,12 +76,15 @@ nlohmann::json stage(const fs::path& out, const std::string& name) {
 TEST_CASE("optimise through meshflow run: stats, same bytes at 1 and 2 threads, --set re-runs only optimise") {
   fs::path d = tmpdir();
   std::ofstream(d / "w.yaml") << kWorkflow;
-  auto r1 = run({"run", (d / "w.yaml").string(), "--cache", (d / "c1").string(), "--out", (d / "o1").string(), "--threads", "1"});
+  // The test source is a patch of a domain, not a whole one: its open boundary breaks the mesh
+  // contract's tags (and, with the CAD, coverage and volume) clauses, accepted here on purpose.
+  auto r1 = run({"run", "--allow-invalid", (d / "w.yaml").string(), "--cache", (d / "c1").string(), "--out", (d / "o1").string(), "--threads", "1"});
   INFO(r1.out << r1.err);
   REQUIRE(r1.code == 0);
   auto st = stage(d / "o1", "optimise");
   REQUIRE(st.is_object());
-  CHECK(st["status"] == "ran");
+  CHECK(st["status"] == "invalid");  // accepted (see above); it ran
+  CHECK(st["computed"] == "ran");
   auto o = st["stats"]["optimise"];
   CHECK(o["energy"]["after"].get<double>() < 0.95 * o["energy"]["before"].get<double>());
   CHECK(o["max_cad_distance"].get<double>() < 1e-7);
@@ -94,16 +97,16 @@ TEST_CASE("optimise through meshflow run: stats, same bytes at 1 and 2 threads, 
   auto m = meshflow::io::read_mesh(d / "o1" / "mesh.msh");
   CHECK(m.order() == 3);
 
-  auto r2 = run({"run", (d / "w.yaml").string(), "--cache", (d / "c2").string(), "--out", (d / "o2").string(), "--threads", "2"});
+  auto r2 = run({"run", "--allow-invalid", (d / "w.yaml").string(), "--cache", (d / "c2").string(), "--out", (d / "o2").string(), "--threads", "2"});
   REQUIRE(r2.code == 0);
   CHECK(slurp(d / "o1" / "mesh.msh") == slurp(d / "o2" / "mesh.msh"));
 
-  auto r3 = run({"run", (d / "w.yaml").string(), "--cache", (d / "c1").string(), "--out", (d / "o3").string(), "--set",
+  auto r3 = run({"run", "--allow-invalid", (d / "w.yaml").string(), "--cache", (d / "c1").string(), "--out", (d / "o3").string(), "--set",
                  "optimise.faces=false"});
   INFO(r3.out << r3.err);
   REQUIRE(r3.code == 0);
   CHECK(stage(d / "o3", "source")["status"] == "cached");
-  CHECK(stage(d / "o3", "optimise")["status"] == "ran");
+  CHECK(stage(d / "o3", "optimise")["computed"] == "ran");
   CHECK(stage(d / "o3", "optimise")["stats"]["optimise"]["units"]["faces"] == 0);
   fs::remove_all(d);
 }
@@ -113,7 +116,7 @@ TEST_CASE("optimise through meshflow run: a linear mesh is refused with the stag
   std::string wf = kWorkflow;
   wf.replace(wf.find("order: 3"), 8, "order: 1");
   std::ofstream(d / "w.yaml") << wf;
-  auto r = run({"run", (d / "w.yaml").string(), "--cache", (d / "c").string(), "--out", (d / "o").string()});
+  auto r = run({"run", "--allow-invalid", (d / "w.yaml").string(), "--cache", (d / "c").string(), "--out", (d / "o").string()});
   CHECK(r.code != 0);
   CHECK((r.out + r.err).find("linear (order 1)") != std::string::npos);
   fs::remove_all(d);

@@ -166,6 +166,43 @@ TEST_CASE("naca_wingtip: runs, matches its golden, re-runs from cache, --set re-
     }
     CHECK(by.size() == 4);  // tets, prisms, hexes, pyramids
   }
+  // the mesh contract: the clean run kept every clause at every mesh stage (curve's inverted
+  // elements are a note that optimise repairs); the curved mesh fills the CAD's fluid volume
+  // and covers each face
+  for (auto& s : rep["stages"]) {
+    if (!s["stats"].contains("contract")) continue;
+    INFO(s["name"].get<std::string>());
+    CHECK(s["stats"]["contract"]["degenerate"] == 0);
+    if (s["name"] != "curve") CHECK(s["stats"]["problems"].empty());
+    if (s["stats"]["contract"].contains("volume_rel_error")) {
+      CHECK(s["stats"]["contract"]["volume_rel_error"].get<double>() < 1e-5);
+      CHECK(s["stats"]["contract"]["face_area_worst_rel_error"].get<double>() < 1e-3);
+    }
+  }
+  // without untangling, the delivered mesh has inverted elements: not a success (exit 3), the
+  // summary opens with where they are, the outputs are written and marked, check refuses
+  {
+    auto bad = sh(meshflow() + " run " + wf + common + " --set optimise.untangle=false");
+    INFO(bad.out);
+    CHECK(bad.code == 3);
+    auto first = bad.out.find("\nINVALID: the mesh breaks the contract");
+    REQUIRE(first != std::string::npos);
+    CHECK(bad.out.find("  split: validity: ", first) != std::string::npos);
+    json rb = json::parse(slurp(d / "out/report.json"));
+    CHECK(rb["ok"] == false);
+    CHECK(rb["invalid"] == true);
+    REQUIRE(rb["problems"].size() == 1);
+    CHECK(rb["problems"][0]["stage"] == "split");
+    CHECK(rb["problems"][0]["clause"] == "validity");
+    CHECK(rb["problems"][0]["count"].get<int>() > 0);
+    CHECK(rb["problems"][0]["where"][0]["at"].size() == 3);
+    CHECK(rb["outputs"]["mesh"]["invalid"] == true);
+    CHECK(fs::exists(d / "out/mesh.msh"));
+    auto chk = sh(meshflow() + " check " + wf + common + " --set optimise.untangle=false");
+    CHECK(chk.code == 3);
+    auto ok = sh(meshflow() + " run " + wf + common + " --set optimise.untangle=false --allow-invalid");
+    CHECK(ok.code == 0);
+  }
   auto r3 = sh(meshflow() + " run " + wf + common + " --set geometry.span=2");
   json rep3 = json::parse(slurp(d / "out/report.json"));
   CHECK(rep3["stages"][0]["status"] == "ran");

@@ -1,0 +1,87 @@
+// meshflow mesh contract — what every mesh a stage produces must satisfy, checked where it is
+// made (DESIGN.md §4-5), and the problems it reports when the mesh breaks it.
+//
+// Clauses (each one a problem entry when broken):
+//   validity    det J > 0 over each whole element (Bezier bounds, stages/model/quality.hpp);
+//               an element the bounds leave inconclusive is not a pass. Not blocking: a later
+//               stage (optimise) may repair it; the run fails if the mesh is delivered so.
+//   degenerate  an element with a zero-length vertex edge (shortest / longest < kMinEdgeRatio),
+//               a zero-area face (straight face area / longest edge^2 < kMinAreaRatio) or a
+//               zero volume (straight volume / longest edge^3 < kMinVolumeRatio). Such elements
+//               can pass the det J check (a prism collapsed along one edge keeps a positive
+//               scaled Jacobian) and are inverted by any curving. Blocking.
+//   conformity  every interior face shared by exactly two elements with the same face nodes.
+//               Blocking.
+//   tags        (domain meshes) every boundary face of the volume mesh is a boundary element of
+//               an entity with a physical group. Blocking.
+//   coverage    the boundary elements close (every edge of theirs used by an even number of
+//               them), and (with the CAD) every face of the healed CAD has boundary elements and
+//               each group's (wall, farfield, ...) boundary area is its CAD faces' area within the
+//               tolerance. Blocking.
+//   volume      (domain meshes with the CAD) the volume the mesh's boundary encloses (divergence
+//               theorem over the boundary faces, Gauss quadrature exact for the mapping's
+//               polynomial degree) equals the CAD fluid volume within the tolerance. Blocking.
+// Tolerances of coverage and volume: a linear mesh's facets cut chords of curved faces, so its
+// area differs from the CAD's by O(h^2) (3% on the demo's wing at a 30 degree turn angle) and
+// more on a narrow rounded face spanned by one or two elements (two chords of a half circle cut
+// 10%): kLinearTolerance; a curved mesh follows the CAD to O(h^(P+1)): kCurvedTolerance. A
+// small hole is not seen in an area; it is seen by the closure of the boundary elements.
+#pragma once
+
+#include "stages/model/mesh.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <string>
+#include <vector>
+
+namespace meshflow {
+class StageContext;
+}
+namespace meshflow::cad {
+class Shape;
+}
+
+namespace meshflow::contract {
+
+inline constexpr double kMinEdgeRatio = 1e-9;
+inline constexpr double kMinAreaRatio = 1e-12;
+inline constexpr double kMinVolumeRatio = 1e-12;
+inline constexpr double kLinearTolerance = 0.1;
+inline constexpr double kCurvedTolerance = 1e-2;
+inline constexpr int kWhereListed = 10;  // elements or faces named per problem
+
+// Which clauses apply: a near-field mesh (sweep's one layer) has an open, untagged outer
+// surface, so tags and volume do not apply to it.
+enum class Extent { NearField, Domain };
+
+// The healed CAD's figures the mesh is compared with (plain numbers: the model knows no CAD).
+struct CadReference {
+  struct Face {
+    int entity = 0;     // the mesh's 2D entity tag of the face (CAD face index + 1)
+    double area = 0;
+    std::string group;  // "wall", "farfield", ... or "" untagged
+  };
+  double volume = 0;
+  std::vector<Face> faces;
+};
+
+struct Result {
+  nlohmann::json mesh;      // model::mesh_stats of the mesh
+  nlohmann::json contract;  // the measured figures of each clause and the tolerances
+  nlohmann::json problems;  // array of {clause, what, count, blocking, where: [...], hint}
+  bool ok() const { return problems.empty(); }
+};
+
+Result check(const model::Mesh& m, Extent extent, const CadReference* cad, int threads);
+
+// The CAD reference of a healed shape (its solids' volume, each face's area and tag).
+CadReference cad_reference(const cad::Shape& shape);
+
+// What a mesh-producing stage calls on the mesh it wrote: stats.mesh, stats.contract and
+// stats.problems (the engine reads "problems": see engine/stage.hpp). `hint` is appended to the
+// validity problem: what the user can change at this stage.
+void record(StageContext& ctx, const model::Mesh& m, Extent extent, const cad::Shape* shape,
+            const std::string& hint = {});
+
+}  // namespace meshflow::contract
