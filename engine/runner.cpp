@@ -345,6 +345,10 @@ std::string problem_line(const std::string& stage, const json& p) {
     if (w.contains("type")) s << " (" << w["type"].get<std::string>() << ")";
     if (w.contains("face_of")) s << ": face of element(s) " << w["face_of"].dump();
     if (w.contains("cad_face")) s << ": CAD face " << w["cad_face"].dump() << " (" << w.value("group", std::string()) << ")";
+    else if (w.contains("group")) s << ": group " << w["group"].dump();
+    if (w.contains("mesh_area") && w.contains("cad_area"))
+      s << std::setprecision(6) << ", mesh area " << w["mesh_area"].get<double>() << " of " << w["cad_area"].get<double>();
+    if (w.contains("edge")) s << ": edge " << w["edge"].dump();
     if (w.contains("at") && w["at"].is_array() && w["at"].size() == 3)
       s << std::setprecision(6) << " at (" << w["at"][0].get<double>() << ", " << w["at"][1].get<double>() << ", "
         << w["at"][2].get<double>() << ")";

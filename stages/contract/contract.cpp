@@ -295,7 +295,7 @@ Result check(const Mesh& m, Extent extent, const CadReference* cad, int threads)
 
   // Area of the boundary elements (the 2D blocks) per entity.
   std::map<int, double> entity_area;
-  if (dim == 3)
+  if (dim >= 2)
     for (const auto& b : m.blocks) {
       if (model::dimension(b.shape) != 2) continue;
       const int n = b.nodes_per_element();
@@ -385,7 +385,7 @@ Result check(const Mesh& m, Extent extent, const CadReference* cad, int threads)
 
   // The boundary elements close: every edge of theirs is used by an even number of them (two
   // on a manifold surface); an edge used once is the rim of a hole.
-  if (dim == 3) {
+  if (dim >= 2) {
     std::vector<std::array<std::uint32_t, 2>> edges;
     for (const auto& b : m.blocks) {
       if (model::dimension(b.shape) != 2) continue;
@@ -419,7 +419,7 @@ Result check(const Mesh& m, Extent extent, const CadReference* cad, int threads)
                                    rim, true, where, ""));
   }
 
-  if (dim == 3 && cad) {
+  if (dim >= 2 && cad) {
     // Each CAD face has boundary elements; each group's boundary area matches its faces' area.
     // (Per face, the areas are reported but not compared: junction strips are elements of one
     // face that can reach onto its neighbour, which moves area between faces, not out of a group.)

@@ -6,6 +6,7 @@
 #include "stages/contract/contract.hpp"
 #include "stages/model/element.hpp"
 #include "stages/model/topology.hpp"
+#include "support.hpp"
 
 #include <array>
 #include <cmath>
@@ -16,6 +17,7 @@ using namespace meshflow;
 using model::Mesh;
 using model::Shape;
 using nlohmann::json;
+namespace fs = std::filesystem;
 
 namespace {
 
@@ -263,4 +265,32 @@ TEST_CASE("contract: a body not cut out: its CAD face is not covered and the vol
   CHECK(r.problems[2]["where"][0]["group"] == "wall");  // the wall group's area: 6 of 7.7
   CHECK(r.contract["group_areas"]["wall"]["rel_error"].get<double>() == doctest::Approx(1.7 / 7.7));
   CHECK(r.contract["volume_rel_error"].get<double>() == doctest::Approx(0.25));
+}
+
+TEST_CASE("contract: a body never cut out of the box (the corpus sphere, heal without sewing) stops at sweep, exit 3") {
+  const fs::path data = MESHFLOW_DATA_DIR;
+  if (!fs::exists(data / "corpus/sphere.step")) return;
+  fs::path d = mftest::temp_dir("contract-sphere");
+  mftest::write_text(d / "w.yaml", "meshflow: 1\nname: sphere-nosew\nstages:\n"
+                                   "  geometry: {kind: step, with: {file: " + (data / "corpus/sphere.step").string() + "}}\n"
+                                   "  heal: {kind: heal, needs: [geometry], with: {fluid: box, sew: false}}\n"
+                                   "  medial: {kind: medial, needs: [heal]}\n"
+                                   "  shell: {kind: shell, needs: [heal, medial], with: {thickness: 0.05}}\n"
+                                   "  balance: {kind: balance, needs: [heal, shell]}\n"
+                                   "  sweep: {kind: sweep, needs: [heal, shell, balance]}\n"
+                                   "  tet: {kind: tet, needs: [sweep]}\n"
+                                   "outputs:\n  linear: {from: tet, formats: [msh]}\n");
+  auto r = mftest::sh(std::string(MESHFLOW_EXE) + " run " + (d / "w.yaml").string() + " --cache " + (d / "c").string() +
+                      " --out " + (d / "out").string() + " 2>&1");
+  INFO(r.out);
+  CHECK(r.code == 3);
+  CHECK(r.out.find("INVALID sweep: coverage: 1 face(s) of the healed CAD without any boundary element") != std::string::npos);
+  json rep = json::parse(mftest::read_text(d / "out/report.json"));
+  CHECK(rep["ok"] == false);
+  for (auto& s : rep["stages"])
+    if (s["name"] == "tet") CHECK(s["status"] == "skipped");  // nothing is built on it
+  REQUIRE(rep["problems"].size() >= 1);
+  CHECK(rep["problems"][0]["where"][0]["group"] == "wall");
+  CHECK(rep["problems"][0]["where"][0]["mesh_area"] == 0.0);
+  fs::remove_all(d);
 }
