@@ -4,6 +4,7 @@
 #include "stages/sweep/uv_mesher.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <set>
 
 using meshflow::sweep::detail::mesh_uv;
@@ -46,4 +47,48 @@ TEST_CASE("uv mesher: no triangle has two boundary segments meeting at a smooth 
     CHECK(out.uv[i][1] < 1);
   }
   CHECK(std::any_of(out.uv.begin() + 4, out.uv.end(), [](auto& q) { return std::abs(q[1] - 0.5) < 1e-12 && q[0] > 8.9; }));
+}
+
+// A face bounded by one closed circular edge (a cylinder's end disc) is a regular polygon of
+// boundary points, all on one circle: every triangle of the first refinement pass has the disc's
+// centre as circumcentre, up to rounding. Points of one pass were chosen against the
+// triangulation before the pass, so 12 of them were inserted within 1e-15 of one another at the
+// centre (issue 20: coincident nodes, zero-area wall triangles). No two points may coincide, no
+// triangle may be degenerate, and the disc is still refined to its size.
+TEST_CASE("uv mesher: a disc bounded by one closed circular edge gets one point at its centre, not several coincident ones") {
+  const int n = 32;
+  const double R = 0.5;
+  UVMeshInput in;
+  for (int i = 0; i < n; ++i) {
+    double a = 2 * M_PI * i / n;
+    in.uv.push_back({R * std::cos(a), R * std::sin(a)});
+    in.segments.push_back({i, (i + 1) % n});
+  }
+  in.smooth.assign(n, 1);
+  in.smooth[0] = 0;  // the closed edge's one vertex
+  in.point = [](double u, double v) { return std::array<double, 3>{u, v, 0}; };
+  in.size = [](double, double) { return 0.1; };
+  auto out = mesh_uv(in);
+  REQUIRE(out.uv.size() > static_cast<std::size_t>(n) + 10);  // refined inside
+  double min_d = INFINITY;
+  int at_centre = 0;
+  for (std::size_t i = 0; i < out.uv.size(); ++i) {
+    if (std::hypot(out.uv[i][0], out.uv[i][1]) < 1e-9) ++at_centre;
+    for (std::size_t j = i + 1; j < out.uv.size(); ++j)
+      min_d = std::min(min_d, std::hypot(out.uv[i][0] - out.uv[j][0], out.uv[i][1] - out.uv[j][1]));
+  }
+  INFO("points " << out.uv.size() << ", within 1e-9 of the centre " << at_centre << ", closest pair " << min_d);
+  CHECK(at_centre <= 1);
+  CHECK(min_d > 0.01);  // a quarter of the size 0.1 is the mesher's own spacing rule; 0.01 leaves room
+  double min_ratio = INFINITY;
+  for (auto& t : out.tris) {
+    auto& p = out.uv;
+    double o = (p[t[1]][0] - p[t[0]][0]) * (p[t[2]][1] - p[t[0]][1]) - (p[t[1]][1] - p[t[0]][1]) * (p[t[2]][0] - p[t[0]][0]);
+    CHECK(o > 0);
+    double l[3];
+    for (int k = 0; k < 3; ++k) l[k] = std::hypot(p[t[k]][0] - p[t[(k + 1) % 3]][0], p[t[k]][1] - p[t[(k + 1) % 3]][1]);
+    min_ratio = std::min(min_ratio, std::min({l[0], l[1], l[2]}) / std::max({l[0], l[1], l[2]}));
+  }
+  CHECK(min_ratio > 0.1);
+  CHECK(out.min_quality > 0.3);
 }
