@@ -54,7 +54,7 @@ void run(StageContext& ctx) {
     UntangleOptions uo;
     uo.max_rings = p.value("untangle_rings", 3);
     uo.surface = p.value("untangle_surface", true);
-    uo.element_budget = 1e6 * p.value("untangle_element_budget", 120.0);
+    uo.element_budget = 1e6 * p.value("untangle_element_budget", 200.0);
     uo.stage_budget = 1e6 * p.value("untangle_budget", 40.0);
     uo.time_limit = p.value("untangle_time_limit", 300.0);
     std::function<void(const std::string&)> dbg;
