@@ -42,7 +42,9 @@ nlohmann::json Report::to_json() const {
           {"nodes_blended", nodes_blended},
           {"elements_checked", elements_checked},
           {"invalid", {{"before", invalid_before}, {"after", invalid_after}}},
-          {"guard", {{"backtracked_units", backtracked_units}, {"reverted_units", reverted_units}, {"rounds", guard_rounds}}},
+          {"guard", {{"backtracked_units", backtracked_units}, {"reverted_units", reverted_units}, {"rounds", guard_rounds},
+                     {"quality_backtracked_units", quality_backtracked_units}}},
+          {"min_scaled_jacobian", {{"before", elements_checked ? min_sj_before : 1.0}, {"after", elements_checked ? min_sj_after : 1.0}}},
           {"iterations", {{"total", iterations}, {"max_per_unit", max_unit_iterations}}},
           {"time", {{"total", seconds}, {"optimise", optimise_seconds}, {"guard", guard_seconds}}}};
 }
@@ -692,8 +694,10 @@ Report optimise_mesh(Mesh& m, const cad::Shape& shape, const Options& opt, int t
   // Bezier validity of the listed elements at `coords` (null: the mesh's current nodes), through
   // model::mesh_quality on a mesh of just those elements (its batched evaluation is several
   // times faster than element_quality one by one; results are per element, so deterministic).
-  auto check = [&](const std::vector<std::size_t>& list, const std::vector<double>* coords, std::vector<char>& valid) {
+  auto check = [&](const std::vector<std::size_t>& list, const std::vector<double>* coords, std::vector<char>& valid,
+                   std::vector<double>& sj) {
     valid.assign(list.size(), 1);
+    sj.assign(list.size(), 1.0);
     if (list.empty()) return;
     Mesh sub;
     if (coords) {
@@ -718,10 +722,15 @@ Report optimise_mesh(Mesh& m, const cad::Shape& shape, const Options& opt, int t
       sb.add(b.element(elems[list[j]].index));
     }
     auto q = arena.execute([&] { return model::mesh_quality(sub, nthreads); });
-    for (std::size_t j = 0; j < list.size(); ++j) valid[j] = q[where[j].first][where[j].second].valid;
+    for (std::size_t j = 0; j < list.size(); ++j) {
+      const auto& e = q[where[j].first][where[j].second];
+      valid[j] = e.valid;
+      sj[j] = e.scaled_jacobian;
+    }
   };
   std::vector<char> valid_before, valid_now;
-  check(touched, &X0, valid_before);
+  std::vector<double> sj_before, sj_now;
+  check(touched, &X0, valid_before, sj_before);
   for (char v : valid_before) rep.invalid_before += !v;
   std::vector<std::size_t> pos_in_touched(elems.size(), SIZE_MAX);
   for (std::size_t j = 0; j < touched.size(); ++j) pos_in_touched[touched[j]] = j;
@@ -733,40 +742,62 @@ Report optimise_mesh(Mesh& m, const cad::Shape& shape, const Options& opt, int t
       if (moves[en[i]]) node_elems[en[i]].push_back(j);
   }
   valid_now = valid_before;
+  sj_now = sj_before;
+  // the patch of a unit: the checked elements with one of its nodes; worst_before[k] = the lowest
+  // scaled Jacobian of unit k's patch before optimisation (the quality guard's floor)
+  std::vector<double> worst_before(units.size(), INFINITY);
+  for (std::size_t j = 0; j < touched.size(); ++j) {
+    const auto& b = m.blocks[elems[touched[j]].block];
+    const std::uint32_t* en = b.element(elems[touched[j]].index);
+    for (int i = 0; i < b.nodes_per_element(); ++i)
+      if (unit_of[en[i]] >= 0) worst_before[unit_of[en[i]]] = std::min(worst_before[unit_of[en[i]]], sj_before[j]);
+  }
   std::vector<std::size_t> recheck(touched.size());
   for (std::size_t j = 0; j < touched.size(); ++j) recheck[j] = j;
-  std::vector<char> backtracked(units.size(), 0);
+  std::vector<char> backtracked(units.size(), 0), worsened(units.size(), 0);
   while (true) {
     std::vector<std::size_t> list;
     for (auto j : recheck) list.push_back(touched[j]);
     std::vector<char> v;
-    check(list, nullptr, v);
-    for (std::size_t q = 0; q < recheck.size(); ++q) valid_now[recheck[q]] = v[q];
-    if (!opt.keep_valid) break;
+    std::vector<double> q;
+    check(list, nullptr, v, q);
+    for (std::size_t i = 0; i < recheck.size(); ++i) valid_now[recheck[i]] = v[i], sj_now[recheck[i]] = q[i];
+    if (!opt.keep_valid && !opt.keep_quality) break;
     std::vector<char> mark(units.size(), 0);
     bool bad = false;
-    for (auto j : recheck)
-      if (valid_before[j] && !valid_now[j]) {
-        bad = true;
-        const auto& b = m.blocks[elems[touched[j]].block];
-        const std::uint32_t* en = b.element(elems[touched[j]].index);
-        for (int i = 0; i < b.nodes_per_element(); ++i)
-          if (unit_of[en[i]] >= 0 && units[unit_of[en[i]]].alpha > 0) mark[unit_of[en[i]]] = 1;
+    for (auto j : recheck) {
+      const auto& b = m.blocks[elems[touched[j]].block];
+      const std::uint32_t* en = b.element(elems[touched[j]].index);
+      // validity: a valid element became invalid -> every unit with a node in it backs off
+      const bool inverted = opt.keep_valid && valid_before[j] && !valid_now[j];
+      // quality: the element is now below the worst before of the patches of all the units
+      // that move it (any of them may have done it) -> every unit with a node in it backs off
+      double floor = INFINITY;
+      for (int i = 0; i < b.nodes_per_element(); ++i)
+        if (unit_of[en[i]] >= 0) floor = std::min(floor, worst_before[unit_of[en[i]]]);
+      const bool worse = opt.keep_quality && sj_now[j] < floor;
+      bool movable = false;  // an inverted element has a unit that can still back off
+      for (int i = 0; i < b.nodes_per_element(); ++i) {
+        const int k = unit_of[en[i]];
+        if (k < 0 || units[k].alpha == 0) continue;
+        movable = true;
+        if (mark[k] || !(inverted || worse)) continue;
+        mark[k] = 1, bad = true;
+        if (!inverted) worsened[k] = 1;
       }
+      if (inverted && !movable)  // cannot happen: an element whose units are all at alpha 0 is exactly as before
+        throw std::logic_error("optimise: validity guard found no unit to backtrack");
+    }
     if (!bad) break;
     ++rep.guard_rounds;
     std::vector<double> before(3 * nn);
     for (std::size_t n = 0; n < nn; ++n) before[3 * n] = m.x[n], before[3 * n + 1] = m.y[n], before[3 * n + 2] = m.z[n];
-    bool any = false;
     for (std::size_t k = 0; k < units.size(); ++k)
       if (mark[k]) {
-        any = true;
         backtracked[k] = 1;
         units[k].alpha = units[k].alpha > 0.125 ? units[k].alpha * 0.5 : 0.0;
         apply(k);
       }
-    if (!any)  // cannot happen: an element whose units are all at alpha 0 is exactly as before
-      throw std::logic_error("optimise: validity guard found no unit to backtrack");
     reblend();
     std::vector<char> flag(touched.size(), 0);
     recheck.clear();
@@ -777,6 +808,9 @@ Report optimise_mesh(Mesh& m, const cad::Shape& shape, const Options& opt, int t
     std::sort(recheck.begin(), recheck.end());
   }
   for (char v : valid_now) rep.invalid_after += !v;
+  for (double q : sj_before) rep.min_sj_before = std::min(rep.min_sj_before, q);
+  for (double q : sj_now) rep.min_sj_after = std::min(rep.min_sj_after, q);
+  for (char w : worsened) rep.quality_backtracked_units += w;
   for (std::size_t k = 0; k < units.size(); ++k) {
     rep.backtracked_units += backtracked[k];
     rep.reverted_units += backtracked[k] && units[k].alpha == 0;

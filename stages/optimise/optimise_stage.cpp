@@ -10,12 +10,21 @@
 
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
+#include <cstdio>
 #include <cstdlib>
 #include <functional>
 #include <sstream>
 
 namespace meshflow::optimise {
 namespace {
+
+std::string duration(double s) {
+  char b[64];
+  if (s < 60) std::snprintf(b, sizeof b, "%.0f s", s);
+  else std::snprintf(b, sizeof b, "%d min %02d s", int(s / 60), int(s) % 60);
+  return b;
+}
 
 void run(StageContext& ctx) {
   const auto& p = ctx.params();
@@ -46,10 +55,15 @@ void run(StageContext& ctx) {
     UntangleOptions uo;
     uo.max_rings = p.value("untangle_rings", 3);
     uo.surface = p.value("untangle_surface", true);
+    uo.element_budget = 1e6 * p.value("untangle_element_budget", 200.0);
+    uo.stage_budget = 1e6 * p.value("untangle_budget", 40.0);
+    uo.time_limit = p.value("untangle_time_limit", 300.0);
     std::function<void(const std::string&)> dbg;
     if (std::getenv("MESHFLOW_UNTANGLE_DEBUG")) dbg = [&](const std::string& l) { ctx.log(l); };
-    ur = untangle(m, uo, ctx.threads(), dbg, &shape, [&](std::size_t k, std::size_t n) {
-      if (k % 10 == 0) ctx.progress(0.5 + 0.2 * double(k) / double(n), "untangling: " + std::to_string(k) + " of " + std::to_string(n) + " invalid elements");
+    ur = untangle(m, uo, ctx.threads(), dbg, &shape, [&](const UntangleProgress& g) {
+      ctx.progress(0.5 + 0.2 * double(g.visited) / double(std::max<std::size_t>(g.total, 1)),
+                   "untangling: " + std::to_string(g.repaired) + " of " + std::to_string(g.total) + " repaired (" +
+                       std::to_string(g.visited) + " tried), " + duration(g.seconds));
     });
   }
   ctx.progress(0.7, "writing");
@@ -65,7 +79,8 @@ void run(StageContext& ctx) {
     << r.faces << " faces; energy " << r.energy_before << " -> " << r.energy_after << ", " << r.nodes_moved
     << " nodes moved (max distance to CAD " << r.max_cad_distance << "), invalid " << r.invalid_before << " -> "
     << r.invalid_after << " of " << r.elements_checked << " checked, " << r.backtracked_units << " units backtracked ("
-    << r.reverted_units << " reverted)";
+    << r.reverted_units << " reverted, " << r.quality_backtracked_units << " for quality alone)";
+  if (r.elements_checked) s << "; min scaled Jacobian of the checked elements " << r.min_sj_before << " -> " << r.min_sj_after;
   if (r.skipped_inconsistent + r.skipped_seam)
     s << "; skipped " << r.skipped_inconsistent << " units whose parameters do not reproduce their nodes and "
       << r.skipped_seam << " across a seam";
@@ -75,15 +90,35 @@ void run(StageContext& ctx) {
     u << "optimise: untangle: " << ur.invalid_before << " invalid elements -> " << ur.invalid_after << " (" << ur.repaired
       << " patches repaired in " << ur.attempts << " attempts, " << ur.repaired_sliding << " of them sliding "
       << ur.surface_nodes_moved << " nodes on the CAD; " << ur.nodes_moved << " off-CAD nodes moved, largest move "
-      << ur.max_move << " x element size, " << ur.seconds << " s)";
+      << ur.max_move << " x element size; work " << ur.work / 1e6 << " M Jacobian samples, at most " << ur.max_element_work / 1e6
+      << " M for one element; " << ur.seconds << " s)";
     ctx.log(u.str());
-    for (auto t : ur.unresolved) ctx.log("optimise:   still invalid: element " + std::to_string(t));
+    if (ur.invalid_after) {
+      std::ostringstream w;
+      w << "optimise: untangle could not repair " << ur.invalid_after << " elements (";
+      bool first = true;
+      for (const auto& [why, n] : ur.unrepaired_by_reason) w << (first ? "" : ", ") << n << " " << why, first = false;
+      w << ")";
+      if (ur.budget_exhausted) w << "; " << ur.budget_exhausted << " gave up on untangle_element_budget";
+      if (ur.stage_budget_exhausted) w << "; untangle_budget of work passed without a repair (no progress): the rest were not tried";
+      if (ur.time_limit_fired) w << "; the safety-net untangle_time_limit fired (this result depends on the machine's speed)";
+      ctx.log(w.str());
+      for (const auto& e : ur.unrepaired) {
+        char line[256];
+        std::snprintf(line, sizeof line, "optimise:   element %llu at (%.6g, %.6g, %.6g): %s", (unsigned long long)e.tag, e.centroid[0],
+                      e.centroid[1], e.centroid[2], e.reason.c_str());
+        ctx.log(line);
+      }
+      if (ur.unrepaired.size() < ur.invalid_after)
+        ctx.log("optimise:   ... and " + std::to_string(ur.invalid_after - ur.unrepaired.size()) + " more (stats.optimise.untangle.unrepaired)");
+      ctx.log("optimise: what to change: " + ur.advice());
+    }
   }
   ctx.progress(1.0, "done");
 }
 
 StageRegistrar reg({.kind = "optimise",
-                    .version = 1,
+                    .version = 2,
                     .summary = "surface node optimisation: spring energy of high-order edges/faces in CAD parameter space, bounded L-BFGS-B, validity kept",
                     .libraries = {"LBFGSpp 0.1.0"},
                     .run = run});

@@ -20,6 +20,8 @@
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
+#include <functional>
+#include <string>
 #include <cmath>
 #include <map>
 #include <mutex>
@@ -45,8 +47,41 @@ nlohmann::json UntangleReport::to_json() const {
           {"surface_nodes_moved", surface_nodes_moved},
           {"repaired_sliding_on_cad", repaired_sliding},
           {"max_move_relative", max_move},
-          {"unresolved", unresolved},
+          {"work", {{"jacobian_samples", work}, {"max_per_element", max_element_work}}},
+          {"budget", {{"elements_exhausted", budget_exhausted}, {"no_progress_stop", stage_budget_exhausted},
+                      {"time_limit_fired", time_limit_fired}}},
+          {"unrepaired", [&] {
+             nlohmann::json l = nlohmann::json::array();
+             for (const auto& u : unrepaired)
+               l.push_back({{"tag", u.tag}, {"centroid", {u.centroid[0], u.centroid[1], u.centroid[2]}}, {"reason", u.reason}});
+             return nlohmann::json{{"count", invalid_after}, {"by_reason", unrepaired_by_reason}, {"listed", l}, {"advice", advice()}};
+           }()},
           {"seconds", seconds}};
+}
+
+std::string UntangleReport::advice() const {
+  if (invalid_after == 0) return "";
+  auto n = [&](const char* r) {
+    auto it = unrepaired_by_reason.find(r);
+    return it == unrepaired_by_reason.end() ? std::size_t(0) : it->second;
+  };
+  std::string a;
+  if (n("degenerate"))
+    a += "Some straight (linear) elements there have no volume: the linear mesh is degenerate at those points; fix the "
+         "stage that made them (sweep/shell: a finer or thinner shell, another shell topology) - no node move can repair "
+         "them. ";
+  if (n("stuck") + n("not repaired") + n("in a failed patch") + n("no free nodes"))
+    a += "Curving folds these elements further than the free high-order nodes around them can absorb: make the "
+         "elements there smaller or thinner (a finer surface mesh or a thinner shell near the listed points), lower "
+         "curve.order, or let optimise use bigger patches (untangle_rings, at most 6). ";
+  if (n("budget") + n("no progress"))
+    a += "The untangling budget ran out (untangle_element_budget per element, untangle_budget of work without a repair for the stage): raising "
+         "them may repair more, at the cost of time; it rarely helps elements reported as stuck. ";
+  if (n("time limit"))
+    a += "The safety-net time limit (untangle_time_limit) stopped the untangling: this result depends on the machine's "
+         "speed. ";
+  if (!a.empty()) a.pop_back();
+  return a;
 }
 
 namespace {
@@ -76,6 +111,10 @@ struct SampleTable {
 // positivity proves validity, so a dip of det J between samples is seen. Other shapes: 1.
 // The samples only steer the optimisation; validity is decided by the Bezier bounds afterwards.
 constexpr int kMaxBezierDegree = 16;
+// A straight element whose det J is below this times its longest vertex edge cubed is
+// degenerate for the untangler (a regular tet: 0.7; a boundary-layer prism of aspect ratio
+// 1e4: about 1e-8 to 1e-4 with its longest edge).
+constexpr double kMinRelativeVolume = 1e-9;
 bool has_bezier_lattice(Shape s, int P) {
   return (s == Shape::Tet && 3 * (P - 1) <= kMaxBezierDegree) || (s == Shape::Prism && 3 * P - 1 <= kMaxBezierDegree);
 }
@@ -148,6 +187,35 @@ const SampleTable& samples(Shape s, int order, int lattice) {
   return cache.emplace(key, std::move(t)).first->second;
 }
 
+// The untangler's budgets ("budget" in untangle.hpp): work in Jacobian evaluations at sample
+// points, counted before each energy evaluation; OutOfBudget is thrown out of the minimiser
+// when an evaluation would exceed the element's budget or the time limit (so the counts, and
+// the result, do not depend on timing, except for the time limit). The no-progress budget
+// (stage_used, reset by each repair) is checked between elements, so an element once started
+// has its whole element budget and a costly repair is not cut off by the failures before it.
+struct OutOfBudget {
+  enum Which { element, time } which;
+};
+struct Budget {
+  // stage_used: work since the last repair (the no-progress budget); total: all work
+  double element_used = 0, element_limit = 0, stage_used = 0, stage_limit = 0, total = 0;
+  double time_limit = 0;
+  std::chrono::steady_clock::time_point t0, last_tick;
+  std::function<void()> tick;  // progress, about every second
+  void charge(double cost) {
+    if (element_limit > 0 && element_used + cost > element_limit) throw OutOfBudget{OutOfBudget::element};
+    const auto now = std::chrono::steady_clock::now();
+    if (time_limit > 0 && std::chrono::duration<double>(now - t0).count() > time_limit) throw OutOfBudget{OutOfBudget::time};
+    element_used += cost;
+    stage_used += cost;
+    total += cost;
+    if (tick && now - last_tick > std::chrono::seconds(1)) {
+      last_tick = now;
+      tick();
+    }
+  }
+};
+
 double det3(const double J[9]) {
   return J[0] * (J[4] * J[8] - J[5] * J[7]) - J[1] * (J[3] * J[8] - J[5] * J[6]) + J[2] * (J[3] * J[7] - J[4] * J[6]);
 }
@@ -171,6 +239,7 @@ struct Patch {
   int nvars = 0;
   double h = 1, target = 0.2, spring = 1e-3;
   int lattice = 0;  // sample lattice (sample_order)
+  Budget* budget = nullptr;  // charged per evaluation when set
   // The elements' energy terms and gradient contributions are computed in parallel (arena),
   // each element into its own buffers, then summed in element order: the same additions in the
   // same order as one thread, so the result is bit-identical at any thread count.
@@ -193,6 +262,11 @@ struct Patch {
 
   // Energy and gradient at y.
   double operator()(const Eigen::VectorXd& y, Eigen::VectorXd& g) const {
+    if (budget) {
+      double cost = 0;
+      for (const ElemRef& r : elems) cost += samples(m.blocks[r.block].shape, m.blocks[r.block].order, lattice).ns;
+      budget->charge(cost);
+    }
     g.setZero(y.size());
     double E = 0;
     // positions of the free nodes (and the face derivatives of the surface nodes)
@@ -338,7 +412,7 @@ struct Patch {
 }  // namespace
 
 UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const std::function<void(const std::string&)>& log,
-                        const cad::Shape* shape, const std::function<void(std::size_t, std::size_t)>& progress) {
+                        const cad::Shape* shape, const std::function<void(const UntangleProgress&)>& progress) {
   const auto t0 = std::chrono::steady_clock::now();
   tbb::task_arena arena(threads > 0 ? threads : tbb::task_arena::automatic);
   UntangleReport rep;
@@ -422,11 +496,11 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
     X.resize(std::size_t(n) * 3);
     for (int a = 0; a < n; ++a) X[3 * a] = m.x[en[a]], X[3 * a + 1] = m.y[en[a]], X[3 * a + 2] = m.z[en[a]];
   };
-  auto is_valid = [&](const ElemRef& r) {
+  auto quality_of = [&](const ElemRef& r) {
     std::vector<double> X;
     element_X(r, X);
     const auto& b = m.blocks[r.block];
-    return model::element_quality(b.shape, b.order, X.data()).valid;
+    return model::element_quality(b.shape, b.order, X.data());
   };
   // det J of the straight element (vertices only) at its reference centroid
   auto straight_det = [&](const ElemRef& r) {
@@ -450,15 +524,41 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
   // cluster, e.g. a folded face on the CAD, would otherwise cost max_rings attempts per member).
   std::vector<std::vector<char>> hopeless(m.blocks.size());
   for (std::uint32_t bi = 0; bi < m.blocks.size(); ++bi) hopeless[bi].assign(valid[bi].size(), 0);
+  // Why an element is left invalid (untangle.hpp, "report"); 0 = not decided.
+  enum Why : std::uint8_t { none, budget, stuck, not_repaired, degenerate, no_free, failed_patch, stage_budget, time_limit };
+  static const char* const why_name[] = {"",           "budget",        "stuck",        "not repaired", "degenerate",
+                                         "no free nodes", "in a failed patch", "no progress", "time limit"};
+  std::vector<std::vector<std::uint8_t>> why(m.blocks.size());
+  for (std::uint32_t bi = 0; bi < m.blocks.size(); ++bi) why[bi].assign(valid[bi].size(), none);
   std::size_t visited = 0;
+  Budget B;
+  B.t0 = B.last_tick = t0;
+  B.element_limit = opt.element_budget;
+  B.stage_limit = opt.stage_budget;
+  B.time_limit = opt.time_limit;
+  auto report_progress = [&] {
+    if (progress)
+      progress({visited, invalid.size(), rep.repaired, std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count()});
+  };
+  B.tick = report_progress;
+  Why stopped = none;  // stage_budget or time_limit: the remaining elements are not tried
   for (const ElemRef& bad : invalid) {
-    if (progress) progress(visited, invalid.size());
+    report_progress();
     ++visited;
     if (valid[bad.block][bad.index]) continue;  // repaired with an earlier patch
     if (hopeless[bad.block][bad.index]) {
       ++rep.skipped;
+      why[bad.block][bad.index] = failed_patch;
       continue;
     }
+    if (B.stage_limit > 0 && B.stage_used >= B.stage_limit) {  // no progress: stop (checked between elements)
+      why[bad.block][bad.index] = stage_budget;
+      stopped = stage_budget;
+      break;
+    }
+    B.element_used = 0;
+    bool any_attempt = false, any_degenerate = false, last_stuck = false;
+    int out = -1;  // OutOfBudget::Which, when a budget ran out on this element
     // element size h: mean vertex-edge length
     double h = 0;
     {
@@ -469,10 +569,13 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
         h += std::hypot(m.x[en[a]] - m.x[en[c]], m.y[en[a]] - m.y[en[c]], m.z[en[a]] - m.z[en[c]]);
       h /= double(ev.size());
     }
-    if (!(h > 0)) continue;
+    if (!(h > 0)) {
+      why[bad.block][bad.index] = degenerate;
+      continue;
+    }
     std::vector<ElemRef> patch{bad};
     bool done = false;
-    for (int ring = 1; ring <= opt.max_rings && !done; ++ring) {
+    for (int ring = 1; ring <= opt.max_rings && !done && out < 0; ++ring) {
       // grow the patch by one ring of node neighbours
       {
         std::vector<ElemRef> grown = patch;
@@ -488,7 +591,7 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
       }
       // mode 0 moves the off-CAD nodes only; mode 1 (with a shape) also slides the nodes inside
       // CAD faces on their faces: a wall face folded on the CAD cannot be repaired by the volume
-      for (int mode = 0; mode < (shape && opt.surface ? 2 : 1) && !done; ++mode) {
+      for (int mode = 0; mode < (shape && opt.surface ? 2 : 1) && !done && out < 0; ++mode) {
       Patch P(m);
       P.arena = &arena;
       P.shape = shape;
@@ -555,16 +658,33 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
         }
         if (!has) continue;
         const double j = straight_det(r);
-        if (!(j > 0)) degenerate = true;
+        // degenerate: its straight version has no volume, or a relative one (det J / longest
+        // vertex edge^3) below kMinRelativeVolume (coincident nodes: aspect ratio 1e14, the
+        // target det J / det J_straight is meaningless and the optimiser only grinds)
+        double L = 0;
+        {
+          const auto& b = m.blocks[r.block];
+          const std::uint32_t* en = b.element(r.index);
+          for (auto [a, c] : model::edge_vertices(b.shape))
+            L = std::max(L, std::hypot(m.x[en[a]] - m.x[en[c]], m.y[en[a]] - m.y[en[c]], m.z[en[a]] - m.z[en[c]]));
+        }
+        if (!(j > kMinRelativeVolume * L * L * L)) degenerate = true;
         P.elems.push_back(r);
         P.slots.push_back(std::move(slot));
         P.jref.push_back(j);
       }
-      if (degenerate) continue;  // a straight element is not valid: nothing to aim at
+      if (degenerate) {  // a straight element is not valid: nothing to aim at
+        any_degenerate = true;
+        continue;
+      }
+      // never worse: a repair must not leave any element of the patch below the worst before
+      // (the invalid element's scaled Jacobian, or another invalid one's if lower)
+      double worst_before = INFINITY;
+      for (const ElemRef& r : P.elems) worst_before = std::min(worst_before, quality_of(r).scaled_jacobian);
       // the target on the coarse samples first, then a higher one on the dense samples: samples
       // just above the target can leave det J negative between them, which the Bezier check
       // finds; then (tets, prisms) half the target on det J's Bernstein coefficients, which see the dips
-      for (int attempt = 0; attempt < 3 && !done; ++attempt) {
+      for (int attempt = 0; attempt < 3 && !done && out < 0; ++attempt) {
         P.target = attempt == 0 ? opt.target : attempt == 1 ? std::max(opt.target, std::min(1.0, 2.5 * opt.target)) : 0.5 * opt.target;
         P.lattice = attempt;
         if (attempt == 2 && std::none_of(P.elems.begin(), P.elems.end(), [&](const ElemRef& r) {
@@ -572,6 +692,7 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
             }))
           break;  // no tet or prism: the third attempt would repeat the second
         ++rep.attempts;
+        any_attempt = true;
 
         LBFGSpp::LBFGSParam<double> param;
         param.m = 8;
@@ -585,11 +706,17 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
         double fx = 0;
         int iters = 0;
         const auto ta = std::chrono::steady_clock::now();
+        P.budget = &B;
         try {
           iters = solver.minimize(P, y, fx);
+        } catch (const OutOfBudget& e) {
+          // nothing was applied to the mesh yet: give up on this element (or on all, stage/time)
+          out = e.which;
+          break;
         } catch (const std::exception&) {
           // a failed line search leaves y at the last accepted point, which is a descent of the energy
         }
+        P.budget = nullptr;  // the diagnostic evaluation below is not charged
         // a diverged line search can leave non-finite values: that attempt failed, nothing moves
         if (!y.allFinite()) continue;
         // apply, check, keep or restore
@@ -611,10 +738,12 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
         bool ok = true;
         std::vector<std::pair<ElemRef, char>> now;
         for (const ElemRef& r : P.elems) {
-          const char v = is_valid(r) ? 1 : 0;
+          const auto q = quality_of(r);
+          const char v = q.valid ? 1 : 0;
           now.push_back({r, v});
           if (valid[r.block][r.index] && !v) ok = false;
           if (r == bad && !v) ok = false;
+          if (q.scaled_jacobian < worst_before) ok = false;
         }
         if (log) {
           Eigen::VectorXd g0(y.size()), z0 = Eigen::VectorXd::Zero(y.size());
@@ -637,6 +766,7 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
           // 1.3 and 8 s after 0.5 s on a 45-element patch, 5 and 29 s on 281 elements)
           const bool stuck = attempt == 0 && fx >= P.target * P.target;
           if (stuck) ++rep.stuck;
+          last_stuck = stuck;
           for (std::size_t i = 0; i < P.free.size(); ++i) {
             const std::uint32_t v = P.free[i];
             m.x[v] = P.x0[3 * i];
@@ -655,16 +785,32 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
           rep.max_move = std::max(rep.max_move, d);
         }
         ++rep.repaired;
+        B.stage_used = 0;  // progress: the no-progress budget starts again
         ++rep.repaired_at_ring[ring - 1];
         rep.repaired_sliding += mode == 1;
         done = true;
       }
       }
     }
-    if (!done)
-      for (const ElemRef& r : patch)
-        if (!valid[r.block][r.index]) hopeless[r.block][r.index] = 1;
+    rep.max_element_work = std::max(rep.max_element_work, B.element_used);
+    if (done) continue;
+    Why w = out == OutOfBudget::element ? budget
+            : out == OutOfBudget::time  ? time_limit
+            : any_attempt               ? (last_stuck ? stuck : not_repaired)
+            : any_degenerate            ? degenerate
+                                        : no_free;
+    why[bad.block][bad.index] = w;
+    if (w == stage_budget || w == time_limit) {
+      stopped = w;
+      break;
+    }
+    if (w == budget) ++rep.budget_exhausted;
+    for (const ElemRef& r : patch)
+      if (!valid[r.block][r.index]) hopeless[r.block][r.index] = 1;
   }
+  rep.work = B.total;
+  rep.stage_budget_exhausted = stopped == stage_budget;
+  rep.time_limit_fired = stopped == time_limit;
 
   std::uint64_t running = 0;
   for (std::uint32_t bi = 0; bi < m.blocks.size(); ++bi) {
@@ -672,7 +818,18 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
     for (std::uint32_t e = 0; e < valid[bi].size(); ++e)
       if (!valid[bi][e]) {
         ++rep.invalid_after;
-        if (rep.unresolved.size() < 100) rep.unresolved.push_back(b.tags.empty() ? running + e + 1 : b.tags[e]);
+        // not reached: the no-progress budget or the time limit stopped the loop before it
+        const Why w = why[bi][e] != none ? Why(why[bi][e]) : stopped != none ? stopped : not_repaired;
+        ++rep.unrepaired_by_reason[why_name[w]];
+        if (int(rep.unrepaired.size()) >= opt.max_listed) continue;
+        Unrepaired u;
+        u.tag = b.tags.empty() ? running + e + 1 : b.tags[e];
+        u.reason = why_name[w];
+        const int nv = model::num_vertices(b.shape);
+        const std::uint32_t* en = b.element(e);
+        for (int a = 0; a < nv; ++a) u.centroid[0] += m.x[en[a]], u.centroid[1] += m.y[en[a]], u.centroid[2] += m.z[en[a]];
+        for (double& c : u.centroid) c /= nv;
+        rep.unrepaired.push_back(std::move(u));
       }
     running += b.size();
   }

@@ -35,11 +35,32 @@
 //           whose optimised edges cross) is repaired this way; the nodes stay on the CAD and the
 //           node parameters are updated. Off-CAD first, so a repair that needs no surface move
 //           makes none.
-//   accept when every patch element that was valid stays valid and the element is valid by the
-//           Bezier bounds of stages/model/quality.hpp (the proof, not the samples); otherwise the
-//           patch is restored exactly and the next ring is tried.
+//   accept when every patch element that was valid stays valid, the element is valid by the
+//           Bezier bounds of stages/model/quality.hpp (the proof, not the samples), and no patch
+//           element ends below the lowest scaled Jacobian of the patch before (never worse: another
+//           invalid element of the patch may not get more inverted); otherwise the patch is
+//           restored exactly and the next ring is tried.
 // An invalid element inside the largest patch of one that could not be repaired is not tried
 // again (its patches are nearly the same; it is counted as skipped and stays invalid).
+//   budget  the untangler gives up instead of grinding. Its work is counted in Jacobian
+//           evaluations at sample points (one per sample of a patch element per energy
+//           evaluation; about 1 microsecond each on one core at P=4): an invalid element whose
+//           patches (all rings, modes and attempts) have used `element_budget` of them is given
+//           up (reason "budget"), and once `stage_budget` has been used since the last repair
+//           (no progress; checked before each element, so the stage stops within one element
+//           budget of it) the remaining invalid elements are not tried (reason "no progress").
+//           A stage that keeps repairing goes on. Both counts are deterministic (independent of
+//           the thread count and the machine), so they decide the output reproducibly.
+//           `time_limit` (seconds, 0 = none) is only an outer safety net against a machine far
+//           slower than expected: when it fires the result depends on the machine's speed, and the
+//           report says so (time_limit_fired).
+//   report  every element still invalid at the end gets a reason: budget, stuck (the coarse try
+//           stayed far from valid at the largest ring), not repaired (every ring and mode
+//           tried), degenerate (a patch element's straight version has no or a negligible volume: nothing to
+//           aim at), no free nodes (every node of the patch is fixed: vertices, CAD, pyramids),
+//           in a failed patch (inside the largest patch of one that could not be repaired: not
+//           tried), no progress / time limit (not tried). The first `max_listed` of them are
+//           listed with their tag and centroid, with counts per reason and advice.
 // Element vertices never move, nodes on the CAD move only on it (sliding), the mesh stays conforming (shared
 // nodes are single nodes). Sequential in mesh order, so the result is deterministic; the cost is
 // proportional to the number of invalid elements, not to the mesh.
@@ -52,6 +73,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <functional>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -65,6 +87,25 @@ struct UntangleOptions {
   double spring = 0;          // lambda, weight of a displacement spring (0: nodes move only while a sample is below target)
   int max_iterations = 400;   // L-BFGS iterations per patch attempt
   bool surface = true;        // with a shape: try sliding the nodes inside CAD faces when off-CAD moves fail
+  // Budgets ("budget" above), in Jacobian evaluations at sample points; <= 0 = unlimited.
+  double element_budget = 200e6;  // per invalid element, all its patch attempts (DLR-F6 needs 124e6 for one)
+  double stage_budget = 40e6;     // since the last repair (no progress), checked between elements
+  double time_limit = 0;          // seconds, safety net only (non-deterministic when it fires); 0 = none
+  int max_listed = 20;           // unrepaired elements listed in the report
+};
+
+// An element left invalid, with where it is and why (reasons: "budget" above).
+struct Unrepaired {
+  std::uint64_t tag = 0;
+  double centroid[3] = {0, 0, 0};  // mean of its vertices
+  std::string reason;
+};
+
+// What the untangler is doing, for progress messages: elements visited / invalid at the start,
+// repaired so far, seconds since it started.
+struct UntangleProgress {
+  std::size_t visited = 0, total = 0, repaired = 0;
+  double seconds = 0;
 };
 
 struct UntangleReport {
@@ -74,9 +115,15 @@ struct UntangleReport {
   std::size_t skipped = 0;  // invalid elements inside the largest patch of one that could not be repaired: not tried
   std::size_t stuck = 0;    // patch attempts whose coarse try stayed >= target^2: the harder tries were skipped
   std::vector<int> repaired_at_ring;                   // [ring-1] = elements repaired with that ring
-  std::vector<std::uint64_t> unresolved;               // element tags still invalid (at most 100)
+  std::vector<Unrepaired> unrepaired;                  // the first max_listed elements still invalid
+  std::map<std::string, std::size_t> unrepaired_by_reason;  // all of them, counted per reason
+  std::size_t budget_exhausted = 0;                     // elements given up on their element budget
+  double work = 0;                                      // Jacobian evaluations at sample points, all patches
+  double max_element_work = 0;                          // the most any one invalid element used
+  bool stage_budget_exhausted = false, time_limit_fired = false;  // stopped for no progress / on the time limit
   double max_move = 0;                                  // largest node displacement / h of its patch
   double seconds = 0;
+  std::string advice() const;                           // what the user can change ("" when all repaired)
   nlohmann::json to_json() const;
 };
 
@@ -85,9 +132,9 @@ struct UntangleReport {
 // `log`, when set, gets one line per patch attempt (a diagnostic: energies, sizes, outcome).
 // With `shape` (the one the mesh's node classification refers to), nodes inside CAD faces may
 // slide on them ("slide" above); without it they never move. `progress`, when set, is called
-// before each invalid element with (elements visited, invalid elements).
+// before each invalid element and about every second during a long patch optimisation.
 UntangleReport untangle(model::Mesh& m, const UntangleOptions& opt, int threads = 0,
                         const std::function<void(const std::string&)>& log = {}, const cad::Shape* shape = nullptr,
-                        const std::function<void(std::size_t, std::size_t)>& progress = {});
+                        const std::function<void(const UntangleProgress&)>& progress = {});
 
 }  // namespace meshflow::optimise

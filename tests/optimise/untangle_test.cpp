@@ -154,7 +154,9 @@ TEST_CASE("untangle: an element inverted by a node on the boundary cannot be rep
   auto rep = meshflow::optimise::untangle(m, {}, 1);
   MESSAGE("untangle: " << rep.invalid_before << " -> " << rep.invalid_after);
   CHECK(rep.invalid_after > 0);
-  CHECK(rep.unresolved.size() == rep.invalid_after);
+  CHECK(rep.unrepaired.size() == std::min<std::size_t>(rep.invalid_after, 20));
+  CHECK(rep.unrepaired_by_reason.size() >= 1);
+  CHECK(!rep.advice().empty());
   CHECK(invalid(m) == rep.invalid_after);
   CHECK(rep.invalid_after <= rep.invalid_before);  // never worse
 }
@@ -183,4 +185,127 @@ TEST_CASE("untangle: the same result at 1 and 2 threads, and nothing to do on a 
   CHECK(a.x == c.x);
   CHECK(a.y == c.y);
   CHECK(a.z == c.z);
+}
+
+namespace {
+
+// A P=4 cube whose boundary face node is pushed across its tet (as in the test above): the
+// element cannot be repaired (the nodes that could compensate are on the boundary, fixed).
+// Returns the mesh and the pushed element's index.
+std::pair<Mesh, std::size_t> impossible_cube(int n) {
+  Mesh m = cube_tets(n, 4);
+  const auto& b = m.blocks[0];
+  for (std::size_t e = 0; e < b.size(); ++e)
+    for (int k = 0; k < 6; ++k) {
+      const auto& en = model::edge_nodes(Shape::Tet, 4)[k];
+      if (m.node_entity_dim[b.element(e)[en[3]]] == 2 && m.node_entity_dim[b.element(e)[en[2]]] == 2 &&
+          m.node_entity_dim[b.element(e)[en[4]]] == 2) {
+        push_edge_node(m, e, k, 3.0);
+        return {m, e};
+      }
+    }
+  return {m, SIZE_MAX};
+}
+
+}  // namespace
+
+TEST_CASE("untangle budget: an element that cannot be repaired is given up on its element budget, in bounded work, and listed with where it is and why") {
+  auto [m0, el] = impossible_cube(2);
+  REQUIRE(el != SIZE_MAX);
+  REQUIRE(invalid(m0) > 0);
+  // unlimited: what it costs to try everything
+  meshflow::optimise::UntangleOptions uo;
+  uo.element_budget = 0, uo.stage_budget = 0;
+  Mesh full = m0;
+  auto rf = meshflow::optimise::untangle(full, uo, 1);
+  MESSAGE("unlimited: " << rf.invalid_before << " -> " << rf.invalid_after << ", work " << rf.work << " samples, most for one element "
+                        << rf.max_element_work << ", " << rf.seconds << " s");
+  REQUIRE(rf.invalid_after > 0);
+  REQUIRE(rf.budget_exhausted == 0);
+  // a tenth of that per element: given up on its budget
+  uo.element_budget = 0.1 * rf.max_element_work;
+  Mesh m = m0;
+  auto r = meshflow::optimise::untangle(m, uo, 1);
+  MESSAGE("budget " << uo.element_budget << ": " << r.invalid_before << " -> " << r.invalid_after << ", work " << r.work << ", "
+                    << r.seconds << " s; advice: " << r.advice());
+  CHECK(r.budget_exhausted >= 1);
+  CHECK(r.max_element_work <= uo.element_budget);
+  CHECK(r.work < rf.work);
+  CHECK(r.invalid_after == invalid(m));
+  CHECK(r.unrepaired_by_reason["budget"] >= 1);
+  // the pushed element is listed, with its tag (1-based index: the block has no tags) and its centroid
+  const std::uint32_t* en = m.blocks[0].element(el);
+  double c[3] = {0, 0, 0};
+  for (int a = 0; a < 4; ++a) c[0] += m.x[en[a]] / 4, c[1] += m.y[en[a]] / 4, c[2] += m.z[en[a]] / 4;
+  bool listed = false;
+  for (const auto& u : r.unrepaired)
+    if (u.tag == el + 1) {
+      listed = true;
+      CHECK(u.reason == "budget");
+      CHECK(std::hypot(u.centroid[0] - c[0], u.centroid[1] - c[1], u.centroid[2] - c[2]) < 1e-12);
+    }
+  CHECK(listed);
+  CHECK(r.unrepaired.size() == std::min<std::size_t>(r.invalid_after, uo.max_listed));
+  CHECK(r.advice().find("untangle_element_budget") != std::string::npos);
+  CHECK(!r.time_limit_fired);
+  // deterministic: a work count, not a time, so the same result at 2 threads
+  Mesh m2 = m0;
+  auto r2 = meshflow::optimise::untangle(m2, uo, 2);
+  CHECK(r2.work == r.work);
+  CHECK(m2.x == m.x);
+  CHECK(m2.y == m.y);
+  CHECK(m2.z == m.z);
+}
+
+TEST_CASE("untangle budget: the no-progress budget and the time limit stop the untangling, the rest is reported as not tried") {
+  // several separate unrepairable elements: each boundary edge node of a 3x3x3 cube's bottom face pushed
+  Mesh m0 = cube_tets(3, 4);
+  const auto& b = m0.blocks[0];
+  std::vector<char> used(m0.num_nodes(), 0);
+  int pushed = 0;
+  for (std::size_t e = 0; e < b.size() && pushed < 4; ++e)
+    for (int k = 0; k < 6; ++k) {
+      const auto& en = model::edge_nodes(Shape::Tet, 4)[k];
+      const std::uint32_t v = b.element(e)[en[3]];
+      if (m0.node_entity_dim[v] == 2 && m0.node_entity_dim[b.element(e)[en[2]]] == 2 && m0.node_entity_dim[b.element(e)[en[4]]] == 2 &&
+          !used[b.element(e)[0]] && !used[b.element(e)[1]] && !used[b.element(e)[2]] && !used[b.element(e)[3]]) {
+        for (int a = 0; a < 4; ++a) used[b.element(e)[a]] = 1;
+        push_edge_node(m0, e, k, 3.0);
+        ++pushed;
+        break;
+      }
+    }
+  REQUIRE(pushed >= 2);
+  const std::size_t bad = invalid(m0);
+  meshflow::optimise::UntangleOptions uo;
+  uo.max_rings = 1;
+  uo.element_budget = 0, uo.stage_budget = 0;
+  Mesh full = m0;
+  auto rf = meshflow::optimise::untangle(full, uo, 1);
+  REQUIRE(rf.invalid_after > 1);
+  // nothing can be repaired: a no-progress budget of half the work stops it, and says so
+  uo.stage_budget = 0.5 * rf.work;
+  Mesh m = m0;
+  auto r = meshflow::optimise::untangle(m, uo, 1);
+  MESSAGE("no progress: " << r.invalid_before << " -> " << r.invalid_after << ", work " << r.work << " of " << rf.work);
+  CHECK(r.stage_budget_exhausted);
+  CHECK(r.work < rf.work);
+  CHECK(r.work >= uo.stage_budget);  // checked between elements: it stops on the first element after the budget
+  CHECK(r.unrepaired_by_reason["no progress"] >= 1);
+  CHECK(r.invalid_after == invalid(m));
+  CHECK(r.invalid_after <= bad);
+  std::size_t total = 0;
+  for (auto& [why, n] : r.unrepaired_by_reason) total += n;
+  CHECK(total == r.invalid_after);
+  // the safety-net time limit: a limit that has passed before the first evaluation
+  uo.stage_budget = 0;
+  uo.time_limit = 1e-9;
+  Mesh t = m0;
+  auto rt = meshflow::optimise::untangle(t, uo, 1);
+  CHECK(rt.time_limit_fired);
+  CHECK(rt.work == 0);
+  CHECK(rt.invalid_after == bad);
+  CHECK(rt.unrepaired_by_reason["time limit"] == bad);
+  CHECK(t.x == m0.x);
+  CHECK(rt.advice().find("untangle_time_limit") != std::string::npos);
 }
