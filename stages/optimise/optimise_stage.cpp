@@ -70,8 +70,9 @@ void run(StageContext& ctx) {
   io::write_mesh(m, ctx.output("mesh", "mesh"), io::MeshFormat::MshBinary);
   ctx.progress(0.8, "quality");
   contract::record(ctx, m, contract::Extent::Domain, &shape,
-                   "optimise could not repair them: see stats.optimise.untangle; a thinner shell (shell.thickness), a lower "
-                   "curve.order or a larger untangle_rings may help");
+                   do_untangle ? "optimise could not repair them: stats.optimise.untangle.unrepaired lists them with the "
+                                 "reason and what to change (a thinner shell, a lower curve.order, larger untangle_rings or budgets)"
+                               : "untangling is off (optimise.untangle: false): turn it on to repair them");
   ctx.stats()["optimise"] = r.to_json();
   if (do_untangle) ctx.stats()["optimise"]["untangle"] = ur.to_json();
   std::ostringstream s;
