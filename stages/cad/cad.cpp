@@ -534,6 +534,24 @@ double Shape::face_area(int f) const {
   BRepGProp::SurfaceProperties(impl_->face(f), g);
   return g.Mass();
 }
+// OCCT's adaptive integration (the Eps overloads): the fixed Gauss rule of the plain overloads
+// is not accurate on trimmed faces. Rotor 67's casing (a surface of revolution trimmed by
+// B-spline edges, 0.208 ft^2 by sampling its trimmed parameter domain and by the mesh) is
+// 0.233 by the fixed rule, and the passage volume 2.7% too large with it.
+double Shape::face_area(int f, double rel_tolerance) const {
+  GProp_GProps g;
+  BRepGProp::SurfaceProperties(impl_->face(f), g, rel_tolerance);
+  return g.Mass();
+}
+double Shape::volume(double rel_tolerance) const {
+  double v = 0;
+  for (int i = 1; i <= impl_->solids.Extent(); ++i) {
+    GProp_GProps g;
+    BRepGProp::VolumeProperties(impl_->solids(i), g, rel_tolerance);
+    v += g.Mass();
+  }
+  return v;
+}
 Box Shape::face_box(int f) const { return box_of(impl_->face(f)); }
 
 std::string Shape::face_surface_type(int f) const {

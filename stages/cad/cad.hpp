@@ -139,6 +139,8 @@ class Shape {
   // ── whole shape ──
   Box box() const;
   double volume() const;  // of the solids (0 without solids)
+  // The same by adaptive integration to a relative tolerance (accurate on trimmed faces, slower).
+  double volume(double rel_tolerance) const;
   double area() const;    // of all faces
   // BRepCheck validity of the whole B-rep (topology and geometry consistency).
   bool valid() const;
@@ -195,6 +197,7 @@ class Shape {
   std::vector<int> face_edges(int face) const;  // distinct edge ids, ascending
   std::vector<int> face_neighbours(int face) const;  // faces sharing an edge, ascending
   double face_area(int face) const;
+  double face_area(int face, double rel_tolerance) const;  // adaptive, as volume(rel_tolerance)
   Box face_box(int face) const;
   std::string face_surface_type(int face) const;  // "plane", "bspline", "revolution", ...
   // Periods of the face's surface in u and v (0: not periodic), e.g. {2 pi, 0} for a surface of

@@ -107,6 +107,20 @@ class FaceIntegrator {
   std::map<std::pair<int, int>, FaceRule> rules_;
 };
 
+// Flux of (x - c0) through boundary face f of the volume mesh, oriented out of its element
+// (Gmsh's face tables are outward): a third of it summed over the boundary is the enclosed volume.
+double face_flux(const Mesh& m, const model::TopoFace& f, FaceIntegrator& integ, std::vector<double>& X, const double c0[3]) {
+  const auto& er = f.elements[0];
+  const auto& b = m.blocks[er.block];
+  const auto& fn = model::face_nodes(b.shape, b.order)[er.local];
+  const std::uint32_t* nn = b.element(er.element);
+  X.resize(3 * fn.size());
+  for (size_t i = 0; i < fn.size(); ++i) X[3 * i] = m.x[nn[fn[i]]], X[3 * i + 1] = m.y[nn[fn[i]]], X[3 * i + 2] = m.z[nn[fn[i]]];
+  double a, fl;
+  integ.integrate(f.num_vertices == 3 ? Shape::Tri : Shape::Quad, b.order, X.data(), c0, a, fl);
+  return fl;
+}
+
 std::string type_name(const model::ElementBlock& b) { return std::string(model::shape_name(b.shape)) + std::to_string(b.order); }
 
 json point(const double p[3]) { return json::array({p[0], p[1], p[2]}); }
@@ -336,15 +350,7 @@ Result check(const Mesh& m, Extent extent, const CadReference* cad, int threads)
     for (const auto& f : topo.faces) {
       if (f.elements.size() != 1) continue;
       const auto& er = f.elements[0];
-      const auto& b = m.blocks[er.block];
-      const auto& fn = model::face_nodes(b.shape, b.order)[er.local];
-      const std::uint32_t* nn = b.element(er.element);
-      X.resize(3 * fn.size());
-      for (size_t i = 0; i < fn.size(); ++i)
-        X[3 * i] = m.x[nn[fn[i]]], X[3 * i + 1] = m.y[nn[fn[i]]], X[3 * i + 2] = m.z[nn[fn[i]]];
-      double a, fl;
-      integ.integrate(f.num_vertices == 3 ? Shape::Tri : Shape::Quad, b.order, X.data(), c0, a, fl);
-      flux += fl;
+      flux += face_flux(m, f, integ, X, c0);
       Key probe{f.vertices, 0, 0};
       auto it = std::lower_bound(keys.begin(), keys.end(), probe);
       bool tagged = false;
@@ -372,11 +378,12 @@ Result check(const Mesh& m, Extent extent, const CadReference* cad, int threads)
     if (cad && cad->volume > 0) {
       const double tol = m.order() <= 1 ? kLinearTolerance : kCurvedTolerance;
       const double rel = std::abs(volume - cad->volume) / cad->volume;
-      r.contract["cad_volume"] = cad->volume;
+      r.contract["reference_volume"] = cad->volume;
+      r.contract["reference"] = cad->source;
       r.contract["volume_rel_error"] = rel;
       if (!(rel <= tol)) {
         std::ostringstream s;
-        s << "the mesh encloses a volume of " << volume << ", the healed fluid solid's is " << cad->volume
+        s << "the mesh encloses a volume of " << volume << ", " << cad->source << " " << cad->volume
           << " (relative difference " << rel << ", tolerance " << tol << ")";
         r.problems.push_back(problem("volume", s.str(), 1, true, json::array(), ""));
       }
@@ -419,7 +426,7 @@ Result check(const Mesh& m, Extent extent, const CadReference* cad, int threads)
                                    rim, true, where, ""));
   }
 
-  if (dim >= 2 && cad) {
+  if (dim >= 2 && cad && !cad->faces.empty()) {
     // Each CAD face has boundary elements; each group's boundary area matches its faces' area.
     // (Per face, the areas are reported but not compared: junction strips are elements of one
     // face that can reach onto its neighbour, which moves area between faces, not out of a group.)
@@ -466,26 +473,47 @@ Result check(const Mesh& m, Extent extent, const CadReference* cad, int threads)
   return r;
 }
 
+double enclosed_volume(const Mesh& m) {
+  if (m.dimension() != 3 || m.num_nodes() == 0) return 0;
+  const auto topo = model::build_topology(m);
+  FaceIntegrator integ;
+  std::vector<double> X;
+  const double c0[3] = {m.x[0], m.y[0], m.z[0]};
+  double flux = 0;
+  for (const auto& f : topo.faces)
+    if (f.elements.size() == 1) flux += face_flux(m, f, integ, X, c0);
+  return flux / 3;
+}
+
 CadReference cad_reference(const cad::Shape& shape) {
   CadReference ref;
-  ref.volume = shape.volume();
+  ref.volume = shape.volume(1e-7);
   for (int f = 0; f < shape.num_faces(); ++f) {
     cad::Tag t = shape.face_tag(f);
-    ref.faces.push_back({f + 1, shape.face_area(f), t == cad::Tag::none ? "" : cad::tag_name(t)});
+    ref.faces.push_back({f + 1, shape.face_area(f, 1e-7), t == cad::Tag::none ? "" : cad::tag_name(t)});
   }
   return ref;
 }
 
-void record(StageContext& ctx, const Mesh& m, Extent extent, const cad::Shape* shape, const std::string& hint) {
-  CadReference ref;
-  if (shape) ref = cad_reference(*shape);
-  Result r = check(m, extent, shape ? &ref : nullptr, ctx.threads());
+namespace {
+void publish(StageContext& ctx, Result r, const std::string& hint) {
   if (!hint.empty())
     for (auto& p : r.problems)
       if (p["clause"] == "validity") p["hint"] = hint;
   ctx.stats()["mesh"] = std::move(r.mesh);
   ctx.stats()["contract"] = std::move(r.contract);
   ctx.stats()["problems"] = std::move(r.problems);
+}
+}  // namespace
+
+void record(StageContext& ctx, const Mesh& m, Extent extent, const cad::Shape* shape, const std::string& hint) {
+  CadReference ref;
+  if (shape) ref = cad_reference(*shape);
+  publish(ctx, check(m, extent, shape ? &ref : nullptr, ctx.threads()), hint);
+}
+
+void record_against(StageContext& ctx, const Mesh& m, Extent extent, const CadReference& ref, const std::string& hint) {
+  publish(ctx, check(m, extent, &ref, ctx.threads()), hint);
 }
 
 }  // namespace meshflow::contract

@@ -64,6 +64,7 @@ struct CadReference {
   };
   double volume = 0;
   std::vector<Face> faces;
+  std::string source = "the healed fluid solid";  // what the figures are of, for messages
 };
 
 struct Result {
@@ -78,10 +79,17 @@ Result check(const model::Mesh& m, Extent extent, const CadReference* cad, int t
 // The CAD reference of a healed shape (its solids' volume, each face's area and tag).
 CadReference cad_reference(const cad::Shape& shape);
 
+// The volume the boundary faces of a volume mesh enclose (the volume clause's measure). A stage
+// that transforms a domain mesh without the CAD (split) compares its result with its input's.
+double enclosed_volume(const model::Mesh& m);
+
 // What a mesh-producing stage calls on the mesh it wrote: stats.mesh, stats.contract and
 // stats.problems (the engine reads "problems": see engine/stage.hpp). `hint` is appended to the
 // validity problem: what the user can change at this stage.
 void record(StageContext& ctx, const model::Mesh& m, Extent extent, const cad::Shape* shape,
             const std::string& hint = {});
+// The same against a reference given as figures (e.g. only the volume of split's input).
+void record_against(StageContext& ctx, const model::Mesh& m, Extent extent, const CadReference& ref,
+                    const std::string& hint = {});
 
 }  // namespace meshflow::contract

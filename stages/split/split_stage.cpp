@@ -50,7 +50,11 @@ void run(StageContext& ctx) {
   ctx.progress(0.6, "writing");
   io::write_mesh(r.mesh, ctx.output("mesh", "mesh"), io::MeshFormat::MshBinary);
   ctx.progress(0.7, "quality");
-  contract::record(ctx, r.mesh, contract::Extent::Domain, nullptr);
+  // Splitting maps sub-elements through their macro element: the domain it fills is the input's.
+  contract::CadReference input_volume;
+  input_volume.volume = contract::enclosed_volume(in);
+  input_volume.source = "the input mesh";
+  contract::record_against(ctx, r.mesh, contract::Extent::Domain, input_volume);
   ctx.stats()["split"] = to_json(r.stats);
   std::ostringstream s;
   s << "split: " << r.stats.macro_prisms << " macro prisms, "

@@ -135,6 +135,20 @@ TEST_CASE("contract: the unit cube passes every clause at orders 1 and 4 with ex
   }
 }
 
+TEST_CASE("contract: a reference volume given as figures (split's input mesh) is compared like the CAD's") {
+  Cube c(2);
+  CHECK(contract::enclosed_volume(c.m) == doctest::Approx(1.0).epsilon(1e-12));
+  contract::CadReference input;
+  input.volume = 1.2;  // an input that filled more: this mesh lost part of the domain
+  input.source = "the input mesh";
+  auto r = contract::check(c.m, contract::Extent::Domain, &input, 1);
+  REQUIRE(clauses(r) == std::vector<std::string>{"volume"});
+  CHECK(r.problems[0]["what"].get<std::string>().find("the input mesh 1.2") != std::string::npos);
+  CHECK(r.contract["reference"] == "the input mesh");
+  input.volume = contract::enclosed_volume(c.m);
+  CHECK(contract::check(c.m, contract::Extent::Domain, &input, 1).ok());
+}
+
 TEST_CASE("contract: a curved boundary's enclosed volume is integrated exactly at order 2") {
   // Move the mid-edge node of one boundary edge on the face z=1 outwards: the volume grows by
   // the integral of the quadratic bump, computed independently here.
