@@ -375,7 +375,8 @@ Result check(const Mesh& m, Extent extent, const CadReference* cad, int threads)
                                    std::to_string(untagged) +
                                        " boundary face(s) of the volume mesh without a tagged boundary element (no physical group)",
                                    untagged, true, where, ""));
-    if (cad && cad->volume > 0) {
+    if (cad && cad->volume > 0 && !cad->volume_reliable) r.contract["reference_volume_unreliable"] = cad->volume;
+    if (cad && cad->volume > 0 && cad->volume_reliable) {
       const double tol = m.order() <= 1 ? kLinearTolerance : kCurvedTolerance;
       const double rel = std::abs(volume - cad->volume) / cad->volume;
       r.contract["reference_volume"] = cad->volume;
@@ -435,19 +436,25 @@ Result check(const Mesh& m, Extent extent, const CadReference* cad, int threads)
     double worst = 0;
     json where = json::array();
     std::map<std::string, std::array<double, 2>> by_group;  // mesh, CAD
+    json unreliable = json::array();
     for (const auto& f : cad->faces) {
       if (!(f.area > 0)) continue;
       auto it = entity_area.find(f.entity);
       const double a = it == entity_area.end() ? 0.0 : it->second;
-      worst = std::max(worst, std::abs(a - f.area) / f.area);
-      by_group[f.group][0] += a;
-      by_group[f.group][1] += f.area;
+      if (f.reliable) {
+        worst = std::max(worst, std::abs(a - f.area) / f.area);
+        by_group[f.group][0] += a;
+        by_group[f.group][1] += f.area;
+      } else {
+        unreliable.push_back(f.entity - 1);
+      }
       if (a > 0) continue;
       ++uncovered;
       if (where.size() < std::size_t(kWhereListed))
         where.push_back({{"cad_face", f.entity - 1}, {"group", f.group}, {"mesh_area", a}, {"cad_area", f.area}});
     }
     r.contract["faces_checked"] = cad->faces.size();
+    r.contract["faces_area_unreliable"] = unreliable;
     r.contract["face_area_worst_rel_error"] = worst;
     if (uncovered)
       r.problems.push_back(problem("coverage",
@@ -486,11 +493,14 @@ double enclosed_volume(const Mesh& m) {
 }
 
 CadReference cad_reference(const cad::Shape& shape) {
+  auto agree = [](double a, double b) { return std::abs(a - b) <= kReferenceAgreement * std::max(std::abs(a), std::abs(b)); };
   CadReference ref;
-  ref.volume = shape.volume(1e-7);
+  ref.volume = shape.volume();
+  ref.volume_reliable = agree(ref.volume, shape.volume(1e-7));
   for (int f = 0; f < shape.num_faces(); ++f) {
     cad::Tag t = shape.face_tag(f);
-    ref.faces.push_back({f + 1, shape.face_area(f, 1e-7), t == cad::Tag::none ? "" : cad::tag_name(t)});
+    const double a = shape.face_area(f);
+    ref.faces.push_back({f + 1, a, t == cad::Tag::none ? "" : cad::tag_name(t), agree(a, shape.face_area(f, 1e-7))});
   }
   return ref;
 }

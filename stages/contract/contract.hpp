@@ -61,8 +61,10 @@ struct CadReference {
     int entity = 0;     // the mesh's 2D entity tag of the face (CAD face index + 1)
     double area = 0;
     std::string group;  // "wall", "farfield", ... or "" untagged
+    bool reliable = true;  // false: the area is not trusted (see cad_reference); not compared
   };
   double volume = 0;
+  bool volume_reliable = true;
   std::vector<Face> faces;
   std::string source = "the healed fluid solid";  // what the figures are of, for messages
 };
@@ -76,8 +78,14 @@ struct Result {
 
 Result check(const model::Mesh& m, Extent extent, const CadReference* cad, int threads);
 
-// The CAD reference of a healed shape (its solids' volume, each face's area and tag).
+// The CAD reference of a healed shape (its solids' volume, each face's area and tag). OCCT's
+// integrations are not right on every trimmed face: its fixed Gauss rule gives Rotor 67's
+// casing 0.2328 ft^2 where the trimmed domain sampled and the mesh give 0.208, and its adaptive
+// rule gives the demo's wing 2% less area than both its fixed rule and the order-4 mesh. A
+// figure is used only when the two agree to kReferenceAgreement; otherwise it is marked not
+// reliable, listed in stats.contract, and not compared (a face must still have elements).
 CadReference cad_reference(const cad::Shape& shape);
+inline constexpr double kReferenceAgreement = 1e-3;
 
 // The volume the boundary faces of a volume mesh enclose (the volume clause's measure). A stage
 // that transforms a domain mesh without the CAD (split) compares its result with its input's.

@@ -57,7 +57,7 @@ void run(StageContext& ctx) {
     uo.surface = p.value("untangle_surface", true);
     uo.element_budget = 1e6 * p.value("untangle_element_budget", 200.0);
     uo.stage_budget = 1e6 * p.value("untangle_budget", 40.0);
-    uo.time_limit = p.value("untangle_time_limit", 300.0);
+    uo.time_limit = p.value("untangle_time_limit", 1800.0);
     std::function<void(const std::string&)> dbg;
     if (std::getenv("MESHFLOW_UNTANGLE_DEBUG")) dbg = [&](const std::string& l) { ctx.log(l); };
     ur = untangle(m, uo, ctx.threads(), dbg, &shape, [&](const UntangleProgress& g) {

