@@ -3,7 +3,7 @@ BUILD ?= build
 JOBS ?= $(shell nproc)
 CMAKE_FLAGS ?=
 
-.PHONY: all deps build demo test bench pictures test-asan fuzz clean
+.PHONY: all deps build demo test bench corpus pictures test-asan fuzz clean
 
 all: build
 
@@ -25,6 +25,11 @@ test: build
 bench: build
 	cmake --build $(BUILD) -j $(JOBS) --target benchmarks
 	bench/run.sh $(BUILD)
+
+# Every corpus shape (../shared/data/corpus, bench/corpus/*.yaml) end to end: which end with a
+# valid mesh, in bench/results/corpus.md (long: tens of minutes)
+corpus: build
+	scripts/corpus.sh $(BUILD)
 
 # README's pictures (docs/img): demo and STEP wing meshes cut and rendered headless (VTK; own Xvfb without a DISPLAY)
 pictures: build

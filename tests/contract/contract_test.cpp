@@ -303,3 +303,26 @@ TEST_CASE("contract: a body never cut out of the box (the corpus sphere, heal wi
   CHECK(rep["problems"][0]["where"][0]["mesh_area"] == 0.0);
   fs::remove_all(d);
 }
+
+TEST_CASE("contract: meshflow contract FILE checks a mesh another tool wrote (Gmsh, Nektar++) and exits 3 when it breaks a clause") {
+  const fs::path data = fs::path(MESHFLOW_DATA_DIR) / "highorder";
+  if (!fs::exists(data / "v4.1_cube_all.msh")) return;
+  const std::string exe = MESHFLOW_EXE;
+  // Gmsh's mixed linear cube (hex, tet, prism, pyramid) keeps every clause that needs no CAD
+  auto ok = mftest::sh(exe + " contract " + (data / "v4.1_cube_all.msh").string() + " 2>&1");
+  INFO(ok.out);
+  CHECK(ok.code == 0);
+  CHECK(ok.out.find("keeps the mesh contract") != std::string::npos);
+  // Nektar++'s test mesh with one invalid curved quad: the validity clause names element 9
+  auto bad = mftest::sh(exe + " contract " + (data / "linearise_invalid_quad.xml").string() + " --json 2>&1");
+  INFO(bad.out);
+  CHECK(bad.code == 3);
+  json r = json::parse(bad.out);
+  CHECK(r["ok"] == false);
+  REQUIRE(r["problems"].size() >= 1);
+  CHECK(r["problems"][0]["clause"] == "validity");
+  CHECK(r["problems"][0]["where"][0]["element"] == 9);
+  // a file it cannot read is bad input
+  auto none = mftest::sh(exe + " contract /nonexistent.msh 2>&1");
+  CHECK(none.code == 2);
+}
