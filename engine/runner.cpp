@@ -322,7 +322,6 @@ std::string disk_hint(const fs::path& root) {
          " KiB free: free some space, run `meshflow gc --max-size ...`, or use another cache with --cache DIR)";
 }
 
-// One human line of a stage's stats.mesh (the engine knows the field names, not meshes).
 // The contract problems a stage listed in its stats (an empty array when none).
 json problems_of(const json& stats) {
   if (stats.is_object() && stats.contains("problems") && stats["problems"].is_array()) return stats["problems"];
@@ -357,6 +356,7 @@ std::string problem_line(const std::string& stage, const json& p) {
   return s.str();
 }
 
+// One human line of a stage's stats.mesh (the engine knows the field names, not meshes).
 std::string mesh_line(const std::string& stage, const json& m) {
   std::ostringstream s;
   auto num = [&](const char* k) { return m.contains(k) && m[k].is_number() ? m[k].get<double>() : NAN; };
@@ -646,7 +646,8 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
   if (tty) out << "\r\033[K";
 
   rr.invalid = any_invalid;
-  rr.ok = !any_failed && (!any_invalid || opt.allow_invalid);
+  rr.failed = any_failed;
+  rr.ok = !rr.failed && (!rr.invalid || opt.allow_invalid);
   json stages = json::array();
   json all_problems = json::array();
   for (auto& d : wf.stages) {
@@ -697,6 +698,7 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
           rr.report["outputs"][o.name]["invalid"] = true;
     } catch (const std::exception& e) {
       rr.ok = false;
+      rr.failed = true;
       rr.report["ok"] = false;
       rr.report["error"] = e.what();
       err << "error: " << e.what() << "\n";
@@ -709,11 +711,10 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
       out << ")\n";
     } catch (const std::exception& e) {
       rr.ok = false;
-      rr.report["error"] = e.what();
+      rr.failed = true;
       err << "error: cannot write " << (rr.out_dir / "report.json").string() << ": " << e.what() << "\n";
     }
   }
-  rr.failed = !rr.ok && !(rr.invalid && !opt.allow_invalid && !any_failed && !rr.report.contains("error"));
   out << (rr.failed ? "FAILED" : !rr.ok ? "INVALID" : rr.invalid ? "ok (INVALID mesh accepted)" : "ok") << " in "
       << fmt(secs(t0), 2) << " s\n"
       << std::flush;

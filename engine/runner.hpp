@@ -45,7 +45,7 @@ struct StageResult {
 struct RunResult {
   bool ok = false;
   // Some stage's result breaks its contract (status "invalid"): the run is not ok unless
-  // allow_invalid accepted it. Exit code kExitInvalid (cli), distinct from a failed stage.
+  // allow_invalid accepted it. Exit code 3 (cli's kInvalid), distinct from a failed stage.
   bool invalid = false;
   bool failed = false;  // a stage failed, or the outputs or report.json could not be written
   std::vector<StageResult> stages;  // in topological order

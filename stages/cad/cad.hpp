@@ -139,7 +139,8 @@ class Shape {
   // ── whole shape ──
   Box box() const;
   double volume() const;  // of the solids (0 without solids)
-  // The same by adaptive integration to a relative tolerance (accurate on trimmed faces, slower).
+  // The same by OCCT's adaptive integration to a relative tolerance (slower; not right on every
+  // trimmed face either: see cad.cpp).
   double volume(double rel_tolerance) const;
   double area() const;    // of all faces
   // BRepCheck validity of the whole B-rep (topology and geometry consistency).

@@ -206,39 +206,44 @@ json problem(const std::string& clause, const std::string& what, std::size_t cou
   return p;
 }
 
-}  // namespace
+// What the clause checks share: the mesh, its element tags, the result being filled, and the
+// quadrature of boundary faces.
+struct Checker {
+  const Mesh& m;
+  const Tags tags;
+  Result& r;
+  FaceIntegrator integ;
+  std::vector<double> X;
+  double c0[3];
+  Checker(const Mesh& mesh, Result& result) : m(mesh), tags(mesh), r(result) {
+    for (int k = 0; k < 3; ++k) c0[k] = m.num_nodes() ? (k == 0 ? m.x[0] : k == 1 ? m.y[0] : m.z[0]) : 0;
+  }
 
-Result check(const Mesh& m, Extent extent, const CadReference* cad, int threads) {
-  Result r;
-  r.problems = json::array();
-  const auto q = model::mesh_quality(m, threads);
-  const auto topo = model::build_topology(m);
-  r.mesh = model::mesh_stats(m, q, topo);
-  const Tags tags(m);
-  const int dim = m.dimension();
-  r.contract = {{"extent", extent == Extent::Domain ? "domain" : "near_field"},
-                {"tolerances",
-                 {{"min_edge_ratio", kMinEdgeRatio},
-                  {"min_area_ratio", kMinAreaRatio},
-                  {"min_volume_ratio", kMinVolumeRatio},
-                  {"area_volume_rel", m.order() <= 1 ? kLinearTolerance : kCurvedTolerance}}}};
+  void face_centre(const model::TopoFace& f, double c[3]) const {
+    c[0] = c[1] = c[2] = 0;
+    for (int k = 0; k < f.num_vertices; ++k) {
+      auto v = f.vertices[size_t(k)];
+      c[0] += m.x[v] / f.num_vertices, c[1] += m.y[v] / f.num_vertices, c[2] += m.z[v] / f.num_vertices;
+    }
+  }
 
   // validity: invalid or inconclusive elements, the worst first
-  struct Bad {
-    double sj;
-    std::size_t bi, e;
-  };
-  std::vector<Bad> bad;
-  std::size_t inconclusive = 0;
-  for (std::size_t bi = 0; bi < m.blocks.size(); ++bi)
-    for (std::size_t e = 0; e < q[bi].size(); ++e) {
-      const auto& eq = q[bi][e];
-      if (!eq.valid || eq.inconclusive) bad.push_back({eq.scaled_jacobian, bi, e});
-      if (eq.valid && eq.inconclusive) ++inconclusive;
-    }
-  r.contract["invalid"] = bad.size() - inconclusive;
-  r.contract["inconclusive"] = inconclusive;
-  if (!bad.empty()) {
+  void validity(const std::vector<std::vector<model::ElementQuality>>& q) {
+    struct Bad {
+      double sj;
+      std::size_t bi, e;
+    };
+    std::vector<Bad> bad;
+    std::size_t inconclusive = 0;
+    for (std::size_t bi = 0; bi < m.blocks.size(); ++bi)
+      for (std::size_t e = 0; e < q[bi].size(); ++e) {
+        const auto& eq = q[bi][e];
+        if (!eq.valid || eq.inconclusive) bad.push_back({eq.scaled_jacobian, bi, e});
+        if (eq.valid && eq.inconclusive) ++inconclusive;
+      }
+    r.contract["invalid"] = bad.size() - inconclusive;
+    r.contract["inconclusive"] = inconclusive;
+    if (bad.empty()) return;
     std::stable_sort(bad.begin(), bad.end(), [](const Bad& a, const Bad& b) { return a.sj < b.sj; });
     json where = json::array();
     for (std::size_t i = 0; i < bad.size() && i < kWhereListed; ++i) {
@@ -255,8 +260,8 @@ Result check(const Mesh& m, Extent extent, const CadReference* cad, int threads)
     r.problems.push_back(problem("validity", what, bad.size(), false, where, ""));
   }
 
-  // degenerate elements
-  {
+  void degenerate() {
+    const int dim = m.dimension();
     std::size_t count = 0;
     json where = json::array();
     for (std::size_t bi = 0; bi < m.blocks.size(); ++bi) {
@@ -279,15 +284,8 @@ Result check(const Mesh& m, Extent extent, const CadReference* cad, int threads)
                                    count, true, where, ""));
   }
 
-  // conformity
-  auto face_centre = [&](const model::TopoFace& f, double c[3]) {
-    c[0] = c[1] = c[2] = 0;
-    for (int k = 0; k < f.num_vertices; ++k) {
-      auto v = f.vertices[size_t(k)];
-      c[0] += m.x[v] / f.num_vertices, c[1] += m.y[v] / f.num_vertices, c[2] += m.z[v] / f.num_vertices;
-    }
-  };
-  if (topo.nonconforming_faces) {
+  void conformity(const model::Topology& topo) {
+    if (!topo.nonconforming_faces) return;
     json where = json::array();
     for (const auto& f : topo.faces) {
       if (f.conforming || where.size() >= std::size_t(kWhereListed)) continue;
@@ -303,18 +301,14 @@ Result check(const Mesh& m, Extent extent, const CadReference* cad, int threads)
                                  topo.nonconforming_faces, true, where, ""));
   }
 
-  FaceIntegrator integ;
-  std::vector<double> X;
-  const double c0[3] = {m.num_nodes() ? m.x[0] : 0, m.num_nodes() ? m.y[0] : 0, m.num_nodes() ? m.z[0] : 0};
-
   // Area of the boundary elements (the 2D blocks) per entity.
-  std::map<int, double> entity_area;
-  if (dim >= 2)
+  std::map<int, double> entity_areas() {
+    std::map<int, double> area;
     for (const auto& b : m.blocks) {
       if (model::dimension(b.shape) != 2) continue;
       const int n = b.nodes_per_element();
       X.resize(3 * size_t(n));
-      double& sum = entity_area[b.entity_tag];
+      double& sum = area[b.entity_tag];
       for (std::size_t e = 0; e < b.size(); ++e) {
         const std::uint32_t* nn = b.element(e);
         for (int i = 0; i < n; ++i) X[3 * i] = m.x[nn[i]], X[3 * i + 1] = m.y[nn[i]], X[3 * i + 2] = m.z[nn[i]];
@@ -323,8 +317,12 @@ Result check(const Mesh& m, Extent extent, const CadReference* cad, int threads)
         sum += a;
       }
     }
+    return area;
+  }
 
-  if (dim == 3 && extent == Extent::Domain) {
+  // tags (each boundary face of the volume mesh is a tagged boundary element) and volume (the
+  // one the boundary faces enclose, against the reference's)
+  void tags_and_volume(const model::Topology& topo, const CadReference* cad, double tol) {
     // Boundary elements by their sorted vertices, to find the one on each boundary face.
     struct Key {
       std::array<std::uint32_t, 4> v;
@@ -355,8 +353,7 @@ Result check(const Mesh& m, Extent extent, const CadReference* cad, int threads)
       auto it = std::lower_bound(keys.begin(), keys.end(), probe);
       bool tagged = false;
       if (it != keys.end() && it->v == f.vertices) {
-        const auto& bb = m.blocks[it->block];
-        const model::Entity* ent = m.find_entity(2, bb.entity_tag);
+        const model::Entity* ent = m.find_entity(2, m.blocks[it->block].entity_tag);
         tagged = ent && !ent->physicals.empty();
       }
       if (tagged) continue;
@@ -375,25 +372,25 @@ Result check(const Mesh& m, Extent extent, const CadReference* cad, int threads)
                                    std::to_string(untagged) +
                                        " boundary face(s) of the volume mesh without a tagged boundary element (no physical group)",
                                    untagged, true, where, ""));
-    if (cad && cad->volume > 0 && !cad->volume_reliable) r.contract["reference_volume_unreliable"] = cad->volume;
-    if (cad && cad->volume > 0 && cad->volume_reliable) {
-      const double tol = m.order() <= 1 ? kLinearTolerance : kCurvedTolerance;
-      const double rel = std::abs(volume - cad->volume) / cad->volume;
-      r.contract["reference_volume"] = cad->volume;
-      r.contract["reference"] = cad->source;
-      r.contract["volume_rel_error"] = rel;
-      if (!(rel <= tol)) {
-        std::ostringstream s;
-        s << "the mesh encloses a volume of " << volume << ", " << cad->source << " " << cad->volume
-          << " (relative difference " << rel << ", tolerance " << tol << ")";
-        r.problems.push_back(problem("volume", s.str(), 1, true, json::array(), ""));
-      }
+    if (!cad || !(cad->volume > 0)) return;
+    if (!cad->volume_reliable) {
+      r.contract["reference_volume_unreliable"] = cad->volume;
+      return;
     }
+    const double rel = std::abs(volume - cad->volume) / cad->volume;
+    r.contract["reference_volume"] = cad->volume;
+    r.contract["reference"] = cad->source;
+    r.contract["volume_rel_error"] = rel;
+    if (rel <= tol) return;
+    std::ostringstream s;
+    s << "the mesh encloses a volume of " << volume << ", " << cad->source << " " << cad->volume << " (relative difference "
+      << rel << ", tolerance " << tol << ")";
+    r.problems.push_back(problem("volume", s.str(), 1, true, json::array(), ""));
   }
 
   // The boundary elements close: every edge of theirs is used by an even number of them (two
   // on a manifold surface); an edge used once is the rim of a hole.
-  if (dim >= 2) {
+  void closure() {
     std::vector<std::array<std::uint32_t, 2>> edges;
     for (const auto& b : m.blocks) {
       if (model::dimension(b.shape) != 2) continue;
@@ -420,24 +417,24 @@ Result check(const Mesh& m, Extent extent, const CadReference* cad, int threads)
       i = j;
     }
     r.contract["boundary_rim_edges"] = rim;
-    if (rim && !edges.empty())
+    if (rim)
       r.problems.push_back(problem("coverage",
                                    "the boundary elements do not close: " + std::to_string(rim) +
                                        " edge(s) used by an odd number of them (the rim of a hole)",
                                    rim, true, where, ""));
   }
 
-  if (dim >= 2 && cad && !cad->faces.empty()) {
-    // Each CAD face has boundary elements; each group's boundary area matches its faces' area.
-    // (Per face, the areas are reported but not compared: junction strips are elements of one
-    // face that can reach onto its neighbour, which moves area between faces, not out of a group.)
-    const double tol = m.order() <= 1 ? kLinearTolerance : kCurvedTolerance;
+  // Each CAD face has boundary elements; each group's boundary area matches its faces' area.
+  // (Per face, the areas are reported but not compared: junction strips are elements of one
+  // face that can reach onto its neighbour, which moves area between faces, not out of a group.)
+  void coverage(const CadReference& cad, double tol) {
+    const std::map<int, double> entity_area = entity_areas();
     std::size_t uncovered = 0;
     double worst = 0;
     json where = json::array();
     std::map<std::string, std::array<double, 2>> by_group;  // mesh, CAD
     json unreliable = json::array();
-    for (const auto& f : cad->faces) {
+    for (const auto& f : cad.faces) {
       if (!(f.area > 0)) continue;
       auto it = entity_area.find(f.entity);
       const double a = it == entity_area.end() ? 0.0 : it->second;
@@ -453,7 +450,7 @@ Result check(const Mesh& m, Extent extent, const CadReference* cad, int threads)
       if (where.size() < std::size_t(kWhereListed))
         where.push_back({{"cad_face", f.entity - 1}, {"group", f.group}, {"mesh_area", a}, {"cad_area", f.area}});
     }
-    r.contract["faces_checked"] = cad->faces.size();
+    r.contract["faces_checked"] = cad.faces.size();
     r.contract["faces_area_unreliable"] = unreliable;
     r.contract["face_area_worst_rel_error"] = worst;
     if (uncovered)
@@ -477,6 +474,31 @@ Result check(const Mesh& m, Extent extent, const CadReference* cad, int threads)
       r.problems.push_back(problem("coverage", s.str(), off, true, gwhere, ""));
     }
   }
+};
+
+}  // namespace
+
+Result check(const Mesh& m, Extent extent, const CadReference* cad, int threads) {
+  Result r;
+  r.problems = json::array();
+  const auto q = model::mesh_quality(m, threads);
+  const auto topo = model::build_topology(m);
+  r.mesh = model::mesh_stats(m, q, topo);
+  const int dim = m.dimension();
+  const double tol = m.order() <= 1 ? kLinearTolerance : kCurvedTolerance;
+  r.contract = {{"extent", extent == Extent::Domain ? "domain" : "near_field"},
+                {"tolerances",
+                 {{"min_edge_ratio", kMinEdgeRatio},
+                  {"min_area_ratio", kMinAreaRatio},
+                  {"min_volume_ratio", kMinVolumeRatio},
+                  {"area_volume_rel", tol}}}};
+  Checker c(m, r);
+  c.validity(q);
+  c.degenerate();
+  c.conformity(topo);
+  if (dim == 3 && extent == Extent::Domain) c.tags_and_volume(topo, cad, tol);
+  if (dim >= 2) c.closure();
+  if (dim >= 2 && cad && !cad->faces.empty()) c.coverage(*cad, tol);
   return r;
 }
 
