@@ -497,7 +497,7 @@ Result check(const Mesh& m, Extent extent, const CadReference* cad, int threads)
   c.degenerate();
   c.conformity(topo);
   if (dim == 3 && extent == Extent::Domain) c.tags_and_volume(topo, cad, tol);
-  if (dim >= 2) c.closure();
+  if (dim == 3) c.closure();  // a 2D mesh's elements are the domain, not its boundary
   if (dim >= 2 && cad && !cad->faces.empty()) c.coverage(*cad, tol);
   return r;
 }
