@@ -16,37 +16,19 @@ using nlohmann::json;
 
 namespace {
 
-struct Flawed {
-  fs::path dir = temp_dir("contract");
-  fs::path wf = dir / "w.yaml";
-  fs::path cache = dir / "cache";
-  fs::path out = dir / "out";
-  fs::path calls_file = dir / "calls.txt";
-  // a -> m (t_flawed) -> z; outputs from z, or from m as well when `deliver_m`.
-  Flawed(bool blocking, bool deliver_m) {
-    std::string y = std::string("meshflow: 1\nname: flawed\nstages:\n") +
-                    "  a: {kind: t_source, with: {text: \"x\"}}\n"
-                    "  m: {kind: t_flawed, needs: [a], with: {blocking: " +
-                    (blocking ? "true" : "false") +
-                    "}}\n"
-                    "  z: {kind: t_cat, needs: [m], with: {suffix: \"-z\"}}\n"
-                    "outputs:\n  final: {from: z}\n" +
-                    (deliver_m ? "  middle: {from: m}\n" : "") + "golden: golden\n";
-    write_text(wf, y);
-    setenv("MESHFLOW_TEST_CALLS", calls_file.c_str(), 1);
-  }
-  CliResult run(std::vector<std::string> extra = {}, const std::string& cmd = "run") {
-    std::vector<std::string> a = {cmd, wf.string(), "--cache", cache.string(), "--out", out.string()};
-    a.insert(a.end(), extra.begin(), extra.end());
-    return cli(a);
-  }
-  json report() { return json::parse(read_text(out / "report.json")); }
-  json stage(const std::string& name) {
-    const json rep = report();
-    for (auto& s : rep["stages"])
-      if (s["name"] == name) return s;
-    return {};
-  }
+// a -> m (t_cat reporting a problem, blocking or not) -> z; outputs from z, and from m as well
+// when `deliver_m`.
+struct Flawed : WorkflowFixture {
+  Flawed(bool blocking, bool deliver_m)
+      : WorkflowFixture(std::string("meshflow: 1\nname: flawed\nstages:\n") +
+                            "  a: {kind: t_source, with: {text: \"x\"}}\n"
+                            "  m: {kind: t_cat, needs: [a], with: {suffix: \"-m\", problem: " +
+                            (blocking ? "blocking" : "repairable") +
+                            "}}\n"
+                            "  z: {kind: t_cat, needs: [m], with: {suffix: \"-z\"}}\n"
+                            "outputs:\n  final: {from: z}\n" +
+                            (deliver_m ? "  middle: {from: m}\n" : "") + "golden: golden\n",
+                        "contract") {}
 };
 
 }  // namespace

@@ -32,27 +32,8 @@ outputs:
 golden: golden
 )";
 
-struct Fixture {
-  fs::path dir = temp_dir("run");
-  fs::path wf = dir / "w.yaml";
-  fs::path cache = dir / "cache";
-  fs::path calls_file = dir / "calls.txt";
-  fs::path out = dir / "out";
-  Fixture(const std::string& yaml = kChain) {
-    write_text(wf, yaml);
-    setenv("MESHFLOW_TEST_CALLS", calls_file.c_str(), 1);
-  }
-  CliResult run(std::vector<std::string> extra = {}, const std::string& cmd = "run") {
-    std::vector<std::string> a = {cmd, wf.string(), "--cache", cache.string()};
-    if (cmd == "run" || cmd == "check" || cmd == "golden") {
-      a.push_back("--out");
-      a.push_back(out.string());
-    }
-    a.insert(a.end(), extra.begin(), extra.end());
-    return cli(a);
-  }
-  std::vector<std::string> calls() { return mftest::calls(calls_file); }
-  void reset_calls() { fs::remove(calls_file); }
+struct Fixture : WorkflowFixture {
+  Fixture(const std::string& yaml = kChain) : WorkflowFixture(yaml) {}
 };
 }  // namespace
 

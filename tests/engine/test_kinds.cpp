@@ -67,6 +67,31 @@ int tmp_count(const fs::path& cache) {
   return n;
 }
 
+WorkflowFixture::WorkflowFixture(const std::string& yaml, const std::string& tag)
+    : dir(temp_dir(tag)), wf(dir / "w.yaml"), cache(dir / "cache"), calls_file(dir / "calls.txt"), out(dir / "out") {
+  write_text(wf, yaml);
+  setenv("MESHFLOW_TEST_CALLS", calls_file.c_str(), 1);
+}
+
+CliResult WorkflowFixture::run(std::vector<std::string> extra, const std::string& cmd) const {
+  std::vector<std::string> a = {cmd, wf.string(), "--cache", cache.string()};
+  if (cmd == "run" || cmd == "check" || cmd == "golden") {
+    a.push_back("--out");
+    a.push_back(out.string());
+  }
+  a.insert(a.end(), extra.begin(), extra.end());
+  return cli(a);
+}
+
+nlohmann::json WorkflowFixture::report() const { return nlohmann::json::parse(read_text(out / "report.json")); }
+
+nlohmann::json WorkflowFixture::stage(const std::string& name) const {
+  const nlohmann::json rep = report();
+  for (auto& s : rep["stages"])
+    if (s["name"] == name) return s;
+  return {};
+}
+
 }  // namespace mftest
 
 // ---------------------------------------------------------------------------------------
@@ -116,7 +141,7 @@ meshflow::StageRegistrar source({.kind = "t_source",
 
 meshflow::StageRegistrar cat({.kind = "t_cat",
                               .version = 1,
-                              .summary = "concatenates its inputs and `suffix`",
+                              .summary = "concatenates its inputs and `suffix`; may report a contract problem",
                               .libraries = {},
                               .run =
                                   [](meshflow::StageContext& ctx) {
@@ -130,32 +155,20 @@ meshflow::StageRegistrar cat({.kind = "t_cat",
                                     ctx.stats()["mesh"] = {{"order", 4}, {"nodes", s.size()}, {"elements", {{"tet", 3}, {"prism", 0}}},
                                                            {"invalid", 0}, {"nonconforming_faces", 0},
                                                            {"min_scaled_jacobian", 0.5}, {"max_aspect_ratio", 70.0}};
+                                    // a contract problem, as a mesh stage reports one for a broken mesh
+                                    const std::string problem = ctx.params()["problem"];
+                                    if (problem != "none")
+                                      ctx.stats()["problems"] = nlohmann::json::array(
+                                          {{{"clause", "validity"},
+                                            {"what", "2 element(s) with det J <= 0 somewhere"},
+                                            {"count", 2},
+                                            {"blocking", problem == "blocking"},
+                                            {"where", {{{"element", 17}, {"type", "tet4"}, {"at", {0.5, 0.25, 1.0}}}}}}});
                                   },
                               .schema = R"({"type":"object","additionalProperties":false,"properties":{
-                                "suffix":{"type":"string","default":"","description":"appended text"}}})"});
-
-// Concatenates like t_cat and reports a contract problem (blocking or not), as a mesh stage
-// does for a mesh that breaks the contract: the engine's handling of "problems".
-meshflow::StageRegistrar flawed({.kind = "t_flawed",
-                                 .version = 1,
-                                 .summary = "concatenates and reports a contract problem",
-                                 .libraries = {},
-                                 .run =
-                                     [](meshflow::StageContext& ctx) {
-                                       record_call(ctx);
-                                       std::string s;
-                                       for (auto& a : ctx.inputs()) s += mftest::read_text(a.path);
-                                       s += "-flawed";
-                                       mftest::write_text(ctx.output("blob", "t_blob"), s);
-                                       ctx.stats()["problems"] = nlohmann::json::array(
-                                           {{{"clause", "validity"},
-                                             {"what", "2 element(s) with det J <= 0 somewhere"},
-                                             {"count", 2},
-                                             {"blocking", ctx.params()["blocking"].get<bool>()},
-                                             {"where", {{{"element", 17}, {"type", "tet4"}, {"at", {0.5, 0.25, 1.0}}}}}}});
-                                     },
-                                 .schema = R"({"type":"object","additionalProperties":false,"properties":{
-                                "blocking":{"type":"boolean","default":false,"description":"no later stage can repair it"}}})"});
+                                "suffix":{"type":"string","default":"","description":"appended text"},
+                                "problem":{"type":"string","enum":["none","repairable","blocking"],"default":"none",
+                                           "description":"a contract problem to report; blocking: no later stage can repair it"}}})"});
 
 // Writes `chunks` chunks of 64 KiB, sleeping `ms` between them: a stage to kill mid-write.
 meshflow::StageRegistrar slow({.kind = "t_slow",

@@ -4,6 +4,8 @@
 
 #include "support.hpp"
 
+#include <nlohmann/json.hpp>
+
 #include <filesystem>
 #include <string>
 #include <vector>
@@ -21,6 +23,18 @@ int spawn_meshflow(const std::vector<std::string>& args, const fs::path& log);
 
 // Lines appended by every test-stage run (stage name), via $MESHFLOW_TEST_CALLS.
 std::vector<std::string> calls(const fs::path& file);
+
+// A workflow file in a fresh folder beside its cache, outputs and the stages' call log; runs
+// the CLI on it (run, check and golden write to `out`).
+struct WorkflowFixture {
+  fs::path dir, wf, cache, calls_file, out;
+  explicit WorkflowFixture(const std::string& yaml, const std::string& tag = "run");
+  CliResult run(std::vector<std::string> extra = {}, const std::string& cmd = "run") const;
+  std::vector<std::string> calls() const { return mftest::calls(calls_file); }
+  void reset_calls() const { fs::remove(calls_file); }
+  nlohmann::json report() const;                         // out/report.json
+  nlohmann::json stage(const std::string& name) const;  // that stage's entry of it (null if none)
+};
 // Number of action entries in a cache.
 int action_count(const fs::path& cache);
 // Files left in the cache's tmp/.
