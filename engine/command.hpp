@@ -21,6 +21,15 @@ void register_command(Command command);
 const Command* find_command(const std::string& name);
 std::vector<const Command*> all_commands();  // sorted by name
 
+// The arguments of a command of the form `NAME FILE [--json] [--threads N]` (quality,
+// contract). False after printing what is wrong and the usage to stderr (exit 2).
+struct FileCommandArgs {
+  std::string file;
+  bool json = false;
+  int threads = 0;
+};
+bool parse_file_command(const std::string& name, const std::vector<std::string>& args, FileCommandArgs& out);
+
 struct CommandRegistrar {
   explicit CommandRegistrar(Command c) { register_command(std::move(c)); }
 };

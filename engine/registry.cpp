@@ -4,6 +4,7 @@
 
 #include <cstdio>
 #include <cstdlib>
+#include <iostream>
 #include <memory>
 
 namespace meshflow {
@@ -136,6 +137,23 @@ void register_command(Command command) {
   }
   std::string k = command.name;
   t.emplace(k, std::move(command));
+}
+bool parse_file_command(const std::string& name, const std::vector<std::string>& args, FileCommandArgs& out) {
+  const std::string usage = "usage: meshflow " + name + " FILE [--json] [--threads N]\n";
+  for (std::size_t i = 0; i < args.size(); ++i) {
+    if (args[i] == "--json") out.json = true;
+    else if (args[i] == "--threads" && i + 1 < args.size()) out.threads = std::atoi(args[++i].c_str());
+    else if (!args[i].empty() && args[i][0] == '-') {
+      std::cerr << "meshflow " << name << ": unknown option " << args[i] << "\n" << usage;
+      return false;
+    } else if (out.file.empty()) out.file = args[i];
+    else {
+      std::cerr << "meshflow " << name << ": one FILE expected\n" << usage;
+      return false;
+    }
+  }
+  if (out.file.empty()) std::cerr << usage;
+  return !out.file.empty();
 }
 const Command* find_command(const std::string& name) {
   auto& t = command_table();

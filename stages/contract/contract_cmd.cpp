@@ -5,41 +5,23 @@
 #include "stages/contract/contract.hpp"
 #include "stages/io/mesh_io.hpp"
 
-#include <cstdlib>
 #include <iostream>
 
 namespace meshflow::contract {
 namespace {
 
 int contract_cmd(const std::vector<std::string>& args) {
-  const char* usage = "usage: meshflow contract FILE [--json] [--threads N]\n";
-  std::string file;
-  bool as_json = false;
-  int threads = 0;
-  for (size_t i = 0; i < args.size(); ++i) {
-    if (args[i] == "--json") as_json = true;
-    else if (args[i] == "--threads" && i + 1 < args.size()) threads = std::atoi(args[++i].c_str());
-    else if (!args[i].empty() && args[i][0] == '-') {
-      std::cerr << "meshflow contract: unknown option " << args[i] << "\n" << usage;
-      return 2;
-    } else if (file.empty()) file = args[i];
-    else {
-      std::cerr << "meshflow contract: one FILE expected\n" << usage;
-      return 2;
-    }
-  }
-  if (file.empty()) {
-    std::cerr << usage;
-    return 2;
-  }
+  FileCommandArgs a;
+  if (!parse_file_command("contract", args, a)) return 2;
+  const std::string& file = a.file;
   Result r;
   try {
-    r = check(io::read_mesh(file), Extent::Domain, nullptr, threads);
+    r = check(io::read_mesh(file), Extent::Domain, nullptr, a.threads);
   } catch (const std::exception& e) {
     std::cerr << "meshflow contract: " << e.what() << "\n";
     return 2;
   }
-  if (as_json) {
+  if (a.json) {
     std::cout << nlohmann::json{{"file", file}, {"ok", r.ok()}, {"contract", r.contract}, {"problems", r.problems}}.dump(2)
               << "\n";
   } else {

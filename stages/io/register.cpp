@@ -63,29 +63,13 @@ void write_mesh(const model::Mesh& m, const std::filesystem::path& path) {
 namespace {
 
 int quality_cmd(const std::vector<std::string>& args) {
-  std::string file;
-  bool json = false;
-  int threads = 0;
-  for (size_t i = 0; i < args.size(); ++i) {
-    if (args[i] == "--json") json = true;
-    else if (args[i] == "--threads" && i + 1 < args.size()) threads = std::atoi(args[++i].c_str());
-    else if (!args[i].empty() && args[i][0] == '-') {
-      std::cerr << "meshflow quality: unknown option " << args[i] << "\nusage: meshflow quality FILE [--json] [--threads N]\n";
-      return 2;
-    } else if (file.empty()) file = args[i];
-    else {
-      std::cerr << "meshflow quality: one FILE expected\n";
-      return 2;
-    }
-  }
-  if (file.empty()) {
-    std::cerr << "usage: meshflow quality FILE [--json] [--threads N]\n";
-    return 2;
-  }
+  FileCommandArgs a;
+  if (!parse_file_command("quality", args, a)) return 2;
+  const std::string& file = a.file;
   try {
     auto m = read_mesh(file);
-    auto s = model::mesh_stats(m, threads);
-    if (json) {
+    auto s = model::mesh_stats(m, a.threads);
+    if (a.json) {
       std::cout << s.dump(2) << "\n";
     } else {
       std::cout << file << ": order " << s["order"] << ", " << s["nodes"] << " nodes\n";
