@@ -43,6 +43,7 @@
 #include <ShapeExtend_Status.hxx>
 #include <ShapeFix_FixSmallFace.hxx>
 #include <ShapeFix_Shape.hxx>
+#include <ShapeFix_Shell.hxx>
 #include <ShapeFix_Solid.hxx>
 #include <ShapeFix_Wireframe.hxx>
 #include <ShapeUpgrade_UnifySameDomain.hxx>
@@ -161,6 +162,30 @@ TopoDS_Shape drop_duplicates(const TopoDS_Shape& s, double tol, int& dropped, St
   for (int i = 0; i < n; ++i)
     if (!drop[i]) b.Add(c, faces(i + 1));
   return c;
+}
+
+// The shells of a shape, with its faces that no shell holds gathered into shells of connected
+// faces. Sewing gives back a closed body of one face (a sphere, a torus; each sphere of two) as
+// that face alone, not as a shell: it is closed by itself (seam and pole edges), so it is a shell.
+std::vector<TopoDS_Shell> shells_of(const TopoDS_Shape& s) {
+  std::vector<TopoDS_Shell> out;
+  TopTools_IndexedMapOfShape in_shell;
+  for (TopExp_Explorer ex(s, TopAbs_SHELL); ex.More(); ex.Next()) {
+    out.push_back(TopoDS::Shell(ex.Current()));
+    TopExp::MapShapes(ex.Current(), TopAbs_FACE, in_shell);
+  }
+  TopoDS_Shell loose;
+  BRep_Builder b;
+  b.MakeShell(loose);
+  int n = 0;
+  for (TopExp_Explorer ex(s, TopAbs_FACE); ex.More(); ex.Next())
+    if (!in_shell.Contains(ex.Current())) b.Add(loose, ex.Current()), ++n;
+  if (!n) return out;
+  // ShapeFix_Shell orients the faces consistently and splits them into connected shells
+  ShapeFix_Shell fix;
+  fix.FixFaceOrientation(loose, Standard_True, Standard_False);
+  for (TopExp_Explorer ex(fix.Shape(), TopAbs_SHELL); ex.More(); ex.Next()) out.push_back(TopoDS::Shell(ex.Current()));
+  return out;
 }
 
 TopoDS_Solid solid_of(const TopoDS_Shell& sh) {
@@ -362,7 +387,7 @@ void run(StageContext& ctx) {
   std::vector<TopoDS_Solid> solids;
   for (TopExp_Explorer ex(s, TopAbs_SOLID); ex.More(); ex.Next()) solids.push_back(TopoDS::Solid(ex.Current()));
   if (solids.empty())
-    for (TopExp_Explorer ex(s, TopAbs_SHELL); ex.More(); ex.Next()) solids.push_back(solid_of(TopoDS::Shell(ex.Current())));
+    for (auto& sh : shells_of(s)) solids.push_back(solid_of(sh));
   if (solids.empty()) throw StageError(src + ": the shape holds no shell: nothing can enclose a fluid");
   // outer first: the largest bounding box
   std::stable_sort(solids.begin(), solids.end(), [](const TopoDS_Solid& a, const TopoDS_Solid& b) {
@@ -414,8 +439,16 @@ void run(StageContext& ctx) {
       ShapeUpgrade_UnifySameDomain un(fluid, Standard_True, Standard_True, Standard_False);
       un.SetLinearTolerance(tol);
       un.Build();
-      fluid = un.Shape();
-      fixes["unified_faces"] = before - count(fluid, tol).faces;
+      // Unifying is a simplification, never a repair: a result OCCT's own check rejects (it can
+      // merge a capsule's hemisphere with its seam into an invalid face) is not taken.
+      if (BRepCheck_Analyzer(un.Shape()).IsValid() || !BRepCheck_Analyzer(fluid).IsValid()) {
+        fluid = un.Shape();
+        fixes["unified_faces"] = before - count(fluid, tol).faces;
+      } else {
+        fixes["unified_faces"] = 0;
+        fixes["unify_rejected"] = "the unified solid fails BRepCheck; the faces are kept as they were";
+        ctx.log("heal: unifying same-domain faces gave a solid that fails BRepCheck: faces kept as they were");
+      }
     }
   } catch (const Standard_Failure& e) {
     throw StageError(src + ": OpenCASCADE failed building the fluid solid (" + e.GetMessageString() + ")");

@@ -115,3 +115,54 @@ TEST_CASE("dlr_f6.brep: 130 faces as stored, one duplicates another, heal gives 
   CHECK(s.faces_with_tag(Tag::farfield).size() == 5);
   CHECK(s.faces_with_tag(Tag::wall).size() == 123);
 }
+
+// The corpus (../shared/data/corpus): closed bodies nobody tuned heal for, in a far-field box.
+namespace {
+std::unique_ptr<TestContext> heal_in_box(const fs::path& file, bool unify = true) {
+  auto imp = import(file);
+  auto h = std::make_unique<TestContext>("heal", nlohmann::json{{"fluid", "box"}, {"unify", unify}},
+                                         std::vector{imp->artifact("shape")});
+  h->run();
+  return h;
+}
+}  // namespace
+
+TEST_CASE("heal: a body of one closed face (sphere, torus, two spheres) is a shell, cut out of the box") {
+  struct Case {
+    const char* file;
+    int bodies;
+    double body_volume;
+  };
+  const double pi = 3.14159265358979;
+  for (Case c : {Case{"sphere.step", 1, 4 * pi / 3 * 0.125}, Case{"torus.step", 1, 2 * pi * pi * 1 * 0.0625},
+                 Case{"two_spheres.step", 2, 2 * 4 * pi / 3 * 0.125}}) {
+    fs::path f = data / "corpus" / c.file;
+    if (!fs::exists(f)) continue;
+    CAPTURE(c.file);
+    auto h = heal_in_box(f);
+    Shape s = Shape::load(h->artifact("shape").path);
+    CHECK(s.watertight());
+    CHECK(s.num_solids() == 1);
+    // six box faces and the body's faces, which are walls
+    CHECK(s.faces_with_tag(Tag::farfield).size() == 6);
+    CHECK(s.faces_with_tag(Tag::wall).size() == (size_t)c.bodies);
+    CHECK(h->stats_["fixes"]["fluid"] == "box minus " + std::to_string(c.bodies) + " body solid(s)");
+    // the box's volume less the bodies' (a body left in, or not cut, would show here)
+    auto b = s.box();
+    double box = (b.hi.x - b.lo.x) * (b.hi.y - b.lo.y) * (b.hi.z - b.lo.z);
+    CHECK(box - s.volume() == doctest::Approx(c.body_volume).epsilon(1e-3));
+  }
+}
+
+TEST_CASE("heal: unifying faces is not taken when its solid fails BRepCheck (the capsule's hemispheres)") {
+  fs::path f = data / "corpus/capsule.step";
+  if (!fs::exists(f)) return;
+  auto h = heal_in_box(f);
+  Shape s = Shape::load(h->artifact("shape").path);
+  CHECK(s.valid());
+  CHECK(s.watertight());
+  CHECK(h->stats_["fixes"]["unified_faces"] == 0);
+  CHECK(h->stats_["fixes"].contains("unify_rejected"));
+  // the body's faces as imported (the cylinder and the hemispheres), none merged
+  CHECK(s.faces_with_tag(Tag::wall).size() == (size_t)import(f)->stats_["faces"].get<int>());
+}
