@@ -1,0 +1,169 @@
+// `meshflow init`'s measurements of a CAD file: body or domain, walls, length scales, curvature.
+#include "stages/init/init.hpp"
+
+#include "engine/stage.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <limits>
+
+namespace meshflow::init {
+namespace {
+using cad::Box;
+using cad::Shape;
+using cad::Vec3;
+
+std::string fmt(double v) {
+  char b[32];
+  std::snprintf(b, sizeof b, "%.4g", v);
+  return b;
+}
+double side(const Box& b, int k) { return b.hi[k] - b.lo[k]; }
+double largest_side(const Box& b) { return std::max({side(b, 0), side(b, 1), side(b, 2)}); }
+double smallest_side(const Box& b) { return std::min({side(b, 0), side(b, 1), side(b, 2)}); }
+double distance(const Vec3& a, const Vec3& b) { return std::hypot(a.x - b.x, a.y - b.y, a.z - b.z); }
+
+// Corners of the bounding box that are vertices of the shape: a tunnel or channel (a box with
+// the body cut out of it) has all eight; a body has its box's corners in the air.
+int box_corners(const Shape& s, const Box& b, double tol) {
+  int n = 0;
+  for (int c = 0; c < 8; ++c) {
+    Vec3 p{c & 1 ? b.hi.x : b.lo.x, c & 2 ? b.hi.y : b.lo.y, c & 4 ? b.hi.z : b.lo.z};
+    for (int v = 0; v < s.num_vertices(); ++v)
+      if (distance(s.vertex_point(v), p) <= tol + s.vertex_tolerance(v)) {
+        ++n;
+        break;
+      }
+  }
+  return n;
+}
+
+// A planar face lying on one of the box's planes (heal's box rule makes it farfield or symmetry).
+bool on_box_plane(const Shape& s, int f, const Box& b, double tol) {
+  if (s.face_surface_type(f) != "plane") return false;
+  Box fb = s.face_box(f);
+  for (int k = 0; k < 3; ++k)
+    if (side(fb, k) <= 2 * tol && (std::abs(fb.lo[k] - b.lo[k]) <= 2 * tol || std::abs(fb.hi[k] - b.hi[k]) <= 2 * tol))
+      return true;
+  return false;
+}
+
+// The body-or-domain rule, with the figures it used.
+void classify(const Shape& s, Analysis& a, double tol) {
+  a.corners = box_corners(s, a.box, tol);
+  const bool voids = a.solids > 0 && a.shells > a.solids;
+  if (voids) {
+    a.domain = true;
+    a.why = std::to_string(a.solids) + " solid(s) with " + std::to_string(a.shells) +
+            " shells: the inner shells are holes in the fluid, so the file is the fluid domain";
+  } else if (a.corners == 8 && a.faces > 6) {
+    a.domain = true;
+    a.why = "all 8 corners of its bounding box are vertices and it has " + std::to_string(a.faces) +
+            " faces: a box-shaped tunnel or channel with the body cut out of it, so the file is the fluid domain";
+  } else {
+    a.domain = false;
+    a.why = std::to_string(a.corners) + " of the 8 corners of its bounding box are vertices and it has no inner shell: a "
+            "body, meshed in a far-field box around it";
+  }
+}
+
+// Smallest radius of curvature over a grid of points inside each wall face (both principal
+// curvatures, convex and concave alike): the balance stage's curvature rule needs it.
+void sample_curvature(const Shape& s, Analysis& a) {
+  constexpr int n = 12;
+  double kmax = 0;
+  for (int f : a.walls) {
+    auto uv = s.face_uv_bounds(f);
+    for (int i = 0; i < n; ++i)
+      for (int j = 0; j < n; ++j) {
+        double u = uv.u0 + (i + 0.5) / n * (uv.u1 - uv.u0), v = uv.v0 + (j + 0.5) / n * (uv.v1 - uv.v0);
+        if (!s.face_contains_uv(f, u, v)) continue;
+        auto c = s.face_curvature(f, u, v);
+        if (!c.defined) continue;
+        ++a.curvature_samples;
+        double k = std::max(std::abs(c.k1), std::abs(c.k2));
+        if (k > kmax) kmax = k, a.min_radius_face = f, a.min_radius_at = s.face_point(f, u, v);
+      }
+  }
+  a.min_radius = kmax > 0 ? 1 / kmax : std::numeric_limits<double>::infinity();
+}
+
+}  // namespace
+
+Analysis analyse(const Shape& s) {
+  Analysis a;
+  a.units = s.units();
+  a.solids = s.num_solids();
+  a.shells = s.num_shells();
+  a.faces = s.num_faces();
+  a.edges = s.num_edges();
+  if (a.faces == 0) throw StageError("the CAD file holds no faces: nothing to mesh");
+  a.box = s.box();
+  a.extent = largest_side(a.box);
+  const double tol = 1e-6 * std::hypot(side(a.box, 0), side(a.box, 1), side(a.box, 2));
+  classify(s, a, tol);
+  for (int f = 0; f < a.faces; ++f)
+    if (!a.domain || !on_box_plane(s, f, a.box, tol)) a.walls.push_back(f);
+  if (a.walls.empty())
+    throw StageError("every face of the domain lies on its bounding box: there is no body to put a boundary layer on");
+  a.wall_box = s.face_box(a.walls[0]);
+  for (int f : a.walls) {
+    Box b = s.face_box(f);
+    for (int k = 0; k < 3; ++k) {
+      double lo[3] = {a.wall_box.lo.x, a.wall_box.lo.y, a.wall_box.lo.z}, hi[3] = {a.wall_box.hi.x, a.wall_box.hi.y, a.wall_box.hi.z};
+      lo[k] = std::min(lo[k], b.lo[k]), hi[k] = std::max(hi[k], b.hi[k]);
+      a.wall_box = {{lo[0], lo[1], lo[2]}, {hi[0], hi[1], hi[2]}};
+    }
+  }
+  a.wall_max = largest_side(a.wall_box);
+  a.wall_min = smallest_side(a.wall_box);
+  a.shortest_wall_edge = std::numeric_limits<double>::infinity();
+  for (int f : a.walls)
+    for (int e : s.face_edges(f))
+      if (!s.edge_degenerate(e)) a.shortest_wall_edge = std::min(a.shortest_wall_edge, s.edge_length(e));
+  sample_curvature(s, a);
+  return a;
+}
+
+Choices choose(const Analysis& a) {
+  Choices c;
+  // Layer thickness: 5% of the body's largest side (a wing's span or chord, a sphere's diameter),
+  // and at most a quarter of its smallest side, so that a slender body (a wing's thickness, a
+  // thin cylinder's diameter) keeps room outside its layer. The shell thins it further where
+  // walls face each other closely.
+  double by_length = 0.05 * a.wall_max, by_width = 0.25 * a.wall_min;
+  c.thickness = std::min(by_length, by_width);
+  c.thickness_why = by_length <= by_width
+                        ? "5% of the walls' largest side " + fmt(a.wall_max) + " " + a.units
+                        : "a quarter of the walls' smallest side " + fmt(a.wall_min) + " " + a.units +
+                              " (5% of the largest side, " + fmt(by_length) + ", would leave too little room)";
+  // Smallest wall element: one element turns by at most 30 degrees on the tightest curvature
+  // (balance's curvature rule), bounded to [0.3%, 1%] of the walls' largest side.
+  constexpr double turn = 30 * 3.14159265358979 / 180;
+  double by_curvature = std::isfinite(a.min_radius) ? turn * a.min_radius / a.wall_max : 1.0;
+  c.min_size = std::clamp(by_curvature, 0.003, 0.01);
+  c.min_size_why = std::isfinite(a.min_radius)
+                       ? "the tightest radius of curvature on the walls is " + fmt(a.min_radius) + " " + a.units +
+                             " (face " + std::to_string(a.min_radius_face) + ", " + std::to_string(a.curvature_samples) +
+                             " samples): 30 degrees of it is " + fmt(by_curvature) +
+                             " of the walls' largest side, kept within [0.003, 0.01]"
+                       : "the walls are flat (" + std::to_string(a.curvature_samples) + " samples): the default 0.01";
+  // Far-field elements: the walls' largest side in a body's box (5 body lengths away); in a
+  // given domain, a tenth of the domain's extent when that is larger, so that a far field many
+  // body lengths away gets large elements rather than millions of small ones.
+  if (a.domain) {
+    double by_domain = 0.1 * a.extent / a.wall_max;
+    c.farfield_size = std::max(1.0, by_domain);
+    c.farfield_why = "the domain's largest side is " + fmt(a.extent) + " " + a.units + ", " +
+                     fmt(a.extent / a.wall_max) + " times the walls' largest side: far-field elements of " +
+                     (by_domain > 1.0 ? "a tenth of the domain's side" : "the walls' largest side");
+  } else {
+    c.farfield_size = 1.0;
+    c.farfield_why = "the far-field box is 11 times the body's largest side (heal's box_padding 5): far-field elements "
+                     "of the body's largest side";
+  }
+  return c;
+}
+
+}  // namespace meshflow::init

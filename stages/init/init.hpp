@@ -1,0 +1,47 @@
+// `meshflow init`: what a CAD file is (a body to put in a far field, or a fluid domain given as it
+// is) and the figures a workflow's choices come from. Measured with cad::Shape's queries only.
+#pragma once
+
+#include "stages/cad/cad.hpp"
+
+#include <string>
+#include <vector>
+
+namespace meshflow::init {
+
+struct Analysis {
+  std::string units;
+  int solids = 0, shells = 0, faces = 0, edges = 0;
+  cad::Box box;        // the whole shape
+  double extent = 0;   // largest side of `box`
+  // body: a closed body (or several) meshed in a far-field box; domain: the fluid region itself
+  // (a solid with a void, or a box-shaped tunnel or channel with the body cut out of it)
+  bool domain = false;
+  std::string why;     // the rule and figures that decided body vs domain
+  int corners = 0;     // corners of `box` that are vertices of the shape (8: a box-shaped domain)
+  std::vector<int> walls;  // faces that will be walls (a domain's faces on its box planes are not)
+  cad::Box wall_box;
+  double wall_max = 0, wall_min = 0;  // largest and smallest side of wall_box
+  // smallest radius of curvature sampled on the walls (inf: all flat) and where
+  double min_radius = 0;
+  int min_radius_face = -1;
+  cad::Vec3 min_radius_at;
+  int curvature_samples = 0;
+  double shortest_wall_edge = 0;
+};
+
+// Throws StageError when the shape has no faces or no face could be a wall.
+Analysis analyse(const cad::Shape& shape);
+
+// The choices written into the workflow, each with the figure it came from.
+struct Choices {
+  double thickness = 0;        // shell thickness (a length in the shape's units)
+  std::string thickness_why;
+  double min_size = 0;         // balance.min_size, a fraction of the walls' largest side
+  std::string min_size_why;
+  double farfield_size = 1.0;  // sweep.farfield_size, a multiple of the walls' largest side
+  std::string farfield_why;
+};
+Choices choose(const Analysis& a);
+
+}  // namespace meshflow::init

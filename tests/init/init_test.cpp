@@ -1,0 +1,117 @@
+// meshflow init: what it decides on the corpus and the paper's CAD, its refusals of bad
+// arguments, and a written workflow run as it is to a valid mesh (the capsule, ~15 s).
+#include <doctest/doctest.h>
+
+#include "stages/geometry/import.hpp"
+#include "stages/init/init.hpp"
+#include "support.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <filesystem>
+
+namespace fs = std::filesystem;
+using meshflow::init::analyse;
+using meshflow::init::choose;
+
+namespace {
+const fs::path data = MESHFLOW_DATA_DIR;
+meshflow::init::Analysis analysed(const fs::path& f) {
+  return analyse(meshflow::geometry::import_cad(f, "", 1.0, [](const std::string&) {}));
+}
+}  // namespace
+
+TEST_CASE("init: a body goes in a far-field box, a tunnel or a solid with a void is the domain") {
+  if (!fs::exists(data / "corpus")) return;
+  struct Case {
+    const char* file;
+    bool domain;
+    size_t walls;
+  };
+  for (Case c : {Case{"corpus/sphere.step", false, 1}, Case{"corpus/rounded_box.step", false, 26},
+                 Case{"corpus/two_spheres.step", false, 2},
+                 Case{"corpus/cylinder_in_box.step", true, 3},       // a void: 1 solid, 2 shells
+                 Case{"corpus/nekmesh_bl_cylinder.stp", true, 2},    // a channel: the box's 8 corners
+                 Case{"wingtip/3d_bl_wing.stp", true, 3}}) {         // a tunnel, faces not sewn
+    CAPTURE(c.file);
+    auto a = analysed(data / c.file);
+    CHECK(a.domain == c.domain);
+    CHECK(a.walls.size() == c.walls);
+    CHECK(!a.why.empty());
+  }
+}
+
+TEST_CASE("init: layer thickness, wall sizes and far-field size come from the measured shape") {
+  if (!fs::exists(data / "corpus")) return;
+  // sphere R 0.5: 5% of its diameter; curvature radius 0.5 asks for no refinement
+  auto s = analysed(data / "corpus/sphere.step");
+  CHECK(s.wall_max == doctest::Approx(1.0).epsilon(1e-3));
+  CHECK(s.min_radius == doctest::Approx(0.5).epsilon(1e-3));
+  auto cs = choose(s);
+  CHECK(cs.thickness == doctest::Approx(0.05).epsilon(1e-3));
+  CHECK(cs.min_size == 0.01);
+  CHECK(cs.farfield_size == 1.0);
+  // the swept wing is slender: a quarter of its smallest side, finer than 5% of its span; its
+  // leading edge's curvature sets min_size below the default
+  auto w = analysed(data / "corpus/swept_wing.step");
+  auto cw = choose(w);
+  CHECK(cw.thickness == doctest::Approx(0.25 * w.wall_min));
+  CHECK(cw.thickness < 0.05 * w.wall_max);
+  CHECK(cw.min_size < 0.01);
+  CHECK(cw.min_size >= 0.003);
+  // a flat-walled body: no curvature, the default
+  auto flat = analysed(data / "corpus/cylinder_in_box.step");
+  CHECK(flat.domain);
+  CHECK(choose(flat).farfield_size == doctest::Approx(1.0));  // a box 10 body lengths across
+}
+
+TEST_CASE("init: bad arguments and files exit 2 with a message, and write nothing") {
+  fs::path dir = mftest::temp_dir("init-bad");
+  auto r = mftest::run_cli({"init"});
+  CHECK(r.code == 2);
+  CHECK(r.err.find("CAD_FILE") != std::string::npos);
+  r = mftest::run_cli({"init", (dir / "missing.step").string(), "-o", (dir / "w.yaml").string()});
+  CHECK(r.code == 2);
+  CHECK(r.err.find("does not exist") != std::string::npos);
+  CHECK(!fs::exists(dir / "w.yaml"));
+  mftest::write_text(dir / "junk.step", "not a step file\n");
+  r = mftest::run_cli({"init", (dir / "junk.step").string(), "-o", (dir / "w.yaml").string()});
+  CHECK(r.code == 2);
+  CHECK(r.err.find("junk.step") != std::string::npos);
+  CHECK(!fs::exists(dir / "w.yaml"));
+  r = mftest::run_cli({"init", "a.step", "--order", "1"});
+  CHECK(r.code == 2);
+  CHECK(r.err.find("--order") != std::string::npos);
+  r = mftest::run_cli({"init", "a.step", "--bogus"});
+  CHECK(r.code == 2);
+  mftest::write_text(dir / "taken.yaml", "keep me\n");
+  r = mftest::run_cli({"init", "a.step", "-o", (dir / "taken.yaml").string()});
+  CHECK(r.code == 2);
+  CHECK(r.err.find("--force") != std::string::npos);
+  CHECK(mftest::read_text(dir / "taken.yaml") == "keep me\n");
+}
+
+TEST_CASE("init: the capsule's workflow, written by init and run as it is, ends valid with 10 split layers") {
+  fs::path cad = data / "corpus/capsule.step";
+  if (!fs::exists(cad)) return;
+  fs::path dir = mftest::temp_dir("init-capsule");
+  fs::path wf = dir / "capsule.yaml";
+  auto r = mftest::run_cli({"init", cad.string(), "-o", wf.string()});
+  REQUIRE(r.code == 0);
+  std::string text = mftest::read_text(wf);
+  CHECK(text.find("fluid: box") != std::string::npos);
+  CHECK(text.find("# Boundary-layer thickness 0.075 m") != std::string::npos);
+  // the same file gives the same workflow
+  REQUIRE(mftest::run_cli({"init", cad.string(), "-o", (dir / "again.yaml").string()}).code == 0);
+  CHECK(mftest::read_text(dir / "again.yaml") == text);
+  auto run = mftest::sh(std::string(MESHFLOW_EXE) + " run " + wf.string() + " --cache " + (dir / "cache").string() +
+                        " --out " + (dir / "out").string() + " 2>&1");
+  CAPTURE(run.out);
+  CHECK(run.code == 0);
+  auto split = mftest::stage_stats(dir / "out", "split");
+  CHECK(split["split"]["layers"] == 10);
+  CHECK(split["mesh"]["invalid"] == 0);
+  CHECK(split["mesh"]["elements"]["prism"] > 0);
+  CHECK(split["problems"].empty());
+  CHECK(fs::exists(dir / "out/mesh.msh"));
+}
