@@ -26,8 +26,8 @@ bench: build
 	cmake --build $(BUILD) -j $(JOBS) --target benchmarks
 	bench/run.sh $(BUILD)
 
-# Every corpus shape (../shared/data/corpus, bench/corpus/*.yaml) end to end: which end with a
-# valid mesh, in bench/results/corpus.md (long: tens of minutes)
+# Every corpus file (../shared/data/corpus) through `meshflow init` and `meshflow run`, no hand
+# edits: which end with a valid mesh, in bench/results/corpus.md (long: tens of minutes)
 corpus: build
 	scripts/corpus.sh $(BUILD)
 

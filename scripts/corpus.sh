@@ -1,79 +1,114 @@
 #!/usr/bin/env bash
-# Runs workflows end to end, from an empty cache each, and says which end with a valid mesh:
-# the exit code of `meshflow run`, its time, how far it got, and the verdict of
-# `meshflow contract` (the clauses that need no CAD) on the final mesh (output `mesh`).
+# The corpus as a new user meets it: for each CAD file `meshflow init` writes the workflow and
+# `meshflow run` runs it as it is, from an empty cache. Per file: what init decided, the exit
+# code, time, peak memory, how far it got, the final mesh's elements and min scaled Jacobian,
+# and three verdicts on the final mesh: ours (`meshflow contract`, the clauses that need no
+# CAD), Gmsh's (Plugin AnalyseMeshQuality, Jacobian determinant) and VTK's (Lagrange cells);
+# plus a cut picture of the final mesh.
 #
-#   scripts/corpus.sh BUILD [RESULTS.md] [WORKFLOW.yaml ...]
+#   scripts/corpus.sh BUILD [RESULTS.md] [CAD_FILE|WORKFLOW.yaml ...]
 #
-# Defaults: the corpus (bench/corpus/*.yaml and workflows/cylinder_in_box.yaml) into
-# bench/results/corpus.md. MESHFLOW_BIN runs another meshflow (e.g. an older build, to compare)
-# while BUILD's meshflow judges the meshes; TIMEOUT (seconds, default 900) bounds each run.
+# Defaults: every file of ../shared/data/corpus (.step/.stp) into bench/results/corpus.md, the
+# pictures beside it in bench/results/corpus/. A .yaml argument is run as it is (no init).
+# MESHFLOW_BIN runs another meshflow (an older build, to compare) while BUILD's meshflow writes
+# the workflows and judges the meshes; TIMEOUT (seconds, default 900) bounds each run;
+# PICTURES=0 skips the pictures.
 set -uo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
-build="$(cd "${1:?usage: scripts/corpus.sh BUILD [RESULTS.md] [WORKFLOW.yaml ...]}" && pwd)"
+build="$(cd "${1:?usage: scripts/corpus.sh BUILD [RESULTS.md] [CAD_FILE|WORKFLOW.yaml ...]}" && pwd)"
 results="${2:-$root/bench/results/corpus.md}"
 shift $(( $# >= 2 ? 2 : $# ))
-workflows=("$@")
-if [ ${#workflows[@]} -eq 0 ]; then workflows=("$root"/bench/corpus/*.yaml "$root/workflows/cylinder_in_box.yaml"); fi
+inputs=("$@")
+if [ ${#inputs[@]} -eq 0 ]; then inputs=("$root"/../shared/data/corpus/*.step "$root"/../shared/data/corpus/*.stp); fi
 judge="$build/meshflow"
 bin="${MESHFLOW_BIN:-$judge}"
 timeout_s="${TIMEOUT:-900}"
+pictures="${PICTURES:-1}"
+picdir="$(dirname "$results")/corpus"
+py=/usr/bin/python3
 scratch="$(mktemp -d /tmp/meshflow-corpus.XXXXXX)"
 trap 'rm -rf "$scratch"' EXIT
+[ "$pictures" = 1 ] && mkdir -p "$picdir"
 
 {
-  echo "| workflow | exit | seconds | stages ran / failed / invalid / skipped | final mesh: contract (no CAD) |"
-  echo "|---|---|---|---|---|"
+  echo "| file | init | exit | seconds | peak MB | reached | final mesh elements | min scaled J | ours (contract) | Gmsh | VTK |"
+  echo "|---|---|---|---|---|---|---|---|---|---|---|"
 } > "$scratch/table"
 valid=0
-for wf in "${workflows[@]}"; do
-  name="$(basename "$wf" .yaml)"
+for input in "${inputs[@]}"; do
+  name="$(basename "${input%.*}")"
   dir="$scratch/$name"
   mkdir -p "$dir"
+  decided="given"
+  wf="$input"
+  if [[ "$input" != *.yaml ]]; then
+    wf="$dir/$name.yaml"
+    if ! "$judge" init "$input" -o "$wf" > "$dir/init.log" 2>&1; then
+      printf '| %s | refused: %s | - | - | - | - | - | - | - | - | - |\n' "$name" "$(tail -1 "$dir/init.log")" >> "$scratch/table"
+      continue
+    fi
+    decided=$(grep -q 'fluid: box}' "$wf" && echo "body in box" || echo "domain")
+  fi
   start=$(date +%s.%N)
   timeout "$timeout_s" "$bin" run "$wf" --cache "$dir/cache" --out "$dir/out" > "$dir/log" 2>&1
   code=$?
   secs=$(echo "$(date +%s.%N) - $start" | bc)
   [ $code -eq 124 ] && code="timeout"
-  counts="-"
+  facts="- | - | - | -"
   if [ -f "$dir/out/report.json" ]; then
-    counts=$(/usr/bin/python3 -c '
+    facts=$($py - "$dir/out/report.json" <<'EOF'
 import json, sys
 r = json.load(open(sys.argv[1]))
-c = {k: 0 for k in ("ran", "failed", "invalid", "skipped")}
-for s in r["stages"]:
-    st = s["status"]
-    st = "ran" if st == "cached" else st
-    c[st] = c.get(st, 0) + 1
-bad = [s["name"] for s in r["stages"] if s["status"] in ("failed", "invalid")]
-print("%d / %d / %d / %d%s" % (c["ran"], c["failed"], c["invalid"], c["skipped"], (" (" + ", ".join(bad) + ")") if bad else ""))
-' "$dir/out/report.json")
+peak = max([s.get("peak_rss_mb") or 0 for s in r["stages"]] + [0])
+bad = [s["name"] + " " + s["status"] for s in r["stages"] if s["status"] in ("failed", "invalid")]
+done = [s["name"] for s in r["stages"] if s["status"] in ("ran", "cached")]
+reached = ", ".join(bad) if bad else (done[-1] if done else "-")
+last = next((s for s in reversed(r["stages"]) if (s.get("stats") or {}).get("mesh")), None)
+elems, sj = "-", "-"
+if last:
+    m = last["stats"]["mesh"]
+    elems = " ".join("%d %s" % (n, t) for t, n in m["elements"].items() if n) + " (" + last["name"] + ")"
+    sj = "%.3g" % m["min_scaled_jacobian"]
+print("%s | %s | %s | %s" % (round(peak) if peak else "-", reached, elems, sj))
+EOF
+)
   fi
-  verdict="no final mesh"
+  ours="no final mesh"; gmsh="-"; vtk="-"
   if [ -f "$dir/out/mesh.msh" ]; then
     "$judge" contract "$dir/out/mesh.msh" --json > "$dir/contract.json" 2>&1
-    verdict=$(/usr/bin/python3 -c '
+    ours=$($py -c '
 import json, sys
 r = json.load(open(sys.argv[1]))
-if r["ok"]:
-    print("valid")
-else:
-    print("INVALID: " + "; ".join("%s %d" % (p["clause"], p["count"]) for p in r["problems"]))
+print("valid" if r["ok"] else "INVALID: " + "; ".join("%s %d" % (p["clause"], p["count"]) for p in r["problems"]))
 ' "$dir/contract.json" 2>/dev/null || echo "unreadable")
+    gmsh=$(timeout 600 $py "$root/tests/workflows/gmsh_jacobian_check.py" "$dir/out/mesh.msh" 2>/dev/null |
+           awk '{n+=$2; b+=$3} END {if (NR) printf "%d of %d", b, n; else print "failed"}')
+    gmsh="${gmsh} flagged"
   fi
-  [ "$verdict" = "valid" ] && valid=$((valid + 1))
-  printf '| %s | %s | %.1f | %s | %s |\n' "$name" "$code" "$secs" "$counts" "$verdict" >> "$scratch/table"
-  echo "$name: exit $code, $(printf '%.1f' "$secs") s, $verdict" >&2
+  if [ -f "$dir/out/mesh.vtu" ]; then
+    vtk=$(timeout 600 $py "$root/tests/workflows/vtk_lagrange_check.py" "$dir/out/mesh.vtu" 2>/dev/null |
+          awk '{n+=$2; b+=$3} END {if (NR) printf "%d of %d flagged", b, n; else print "failed"}')
+    if [ "$pictures" = 1 ]; then
+      $py "$root/scripts/render-cut.py" "$dir/out/mesh.vtu" "$picdir/$name.png" --relative \
+          --point 0.5 0.5 0.5 --normal 0 0 1 --up 0 1 0 > "$dir/picture.log" 2>&1 && ours="$ours ([cut](corpus/$name.png))"
+    fi
+  fi
+  [[ "$ours" == valid* ]] && [ "$code" = 0 ] && valid=$((valid + 1))
+  printf '| %s | %s | %s | %.1f | %s | %s | %s | %s |\n' "$name" "$decided" "$code" "$secs" "$facts" "$ours" "$gmsh" "$vtk" >> "$scratch/table"
+  echo "$name: $decided, exit $code, $(printf '%.1f' "$secs") s, $ours" >&2
 done
 mkdir -p "$(dirname "$results")"
 {
-  echo "# Corpus: which workflows end with a valid mesh"
+  echo "# Corpus: CAD nobody tuned for, through \`meshflow init\` and \`meshflow run\`"
   echo
   echo "\`MESHFLOW_BIN=$bin TIMEOUT=$timeout_s scripts/corpus.sh $build\` on $(date -u +%F), $(nproc) cores, $(git -C "$root" rev-parse --short HEAD 2>/dev/null)."
-  echo "Each workflow from an empty cache. \"valid\": its final mesh keeps the contract's clauses that need no CAD (\`meshflow contract\`)."
+  echo "Each file: \`meshflow init FILE\` writes the workflow, run as it is from an empty cache (no hand edits)."
+  echo "\"reached\": the stage that failed or was invalid, else the last stage. Verdicts on the final mesh:"
+  echo "ours (\`meshflow contract\`: det J > 0 over each whole element, degenerate, conformity, tags, closure),"
+  echo "Gmsh's AnalyseMeshQuality (elements with min J <= 0) and VTK's Lagrange cells (non-positive volume samples)."
   echo
   cat "$scratch/table"
   echo
-  echo "$valid of ${#workflows[@]} end with a valid mesh."
+  echo "$valid of ${#inputs[@]} end with exit 0 and a valid mesh."
 } > "$results"
-echo "$valid of ${#workflows[@]} end with a valid mesh; table in $results" >&2
+echo "$valid of ${#inputs[@]} end with exit 0 and a valid mesh; table in $results" >&2

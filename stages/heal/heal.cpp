@@ -302,6 +302,10 @@ void run(StageContext& ctx) {
              check_si = P.at("check_self_intersection").get<std::string>() != "off";
   const int si_level = P.at("check_self_intersection").get<std::string>() == "edges" ? 4 : 5;
   const std::string fluid_mode = P.at("fluid").get<std::string>(), tag_mode = P.at("tags").get<std::string>();
+  const std::string symmetry_plane = P.value("symmetry_plane", std::string("none"));
+  if (symmetry_plane != "none" && fluid_mode != "box")
+    throw StageError(src + ": symmetry_plane: " + symmetry_plane + " needs fluid: box (it says which side of the body's "
+                     "far-field box lies on its root plane)");
   auto& st = ctx.stats();
   st["tolerance"] = tol;
   json fixes = json::object();
@@ -406,7 +410,15 @@ void run(StageContext& ctx) {
       double x0, y0, z0, x1, y1, z1;
       body.Get(x0, y0, z0, x1, y1, z1);
       double pad = P.at("box_padding").get<double>() * std::max({x1 - x0, y1 - y0, z1 - z0});
-      TopoDS_Shape box = BRepPrimAPI_MakeBox(gp_Pnt(x0 - pad, y0 - pad, z0 - pad), gp_Pnt(x1 + pad, y1 + pad, z1 + pad)).Shape();
+      // a half model: no padding on the side of its root plane (axis k, lo or hi side)
+      double lo[3] = {x0 - pad, y0 - pad, z0 - pad}, hi[3] = {x1 + pad, y1 + pad, z1 + pad};
+      if (symmetry_plane != "none") {
+        int k = symmetry_plane[0] - 'x';
+        if (symmetry_plane[1] == '-') lo[k] += pad;
+        else hi[k] -= pad;
+        fixes["symmetry_plane"] = symmetry_plane;
+      }
+      TopoDS_Shape box = BRepPrimAPI_MakeBox(gp_Pnt(lo[0], lo[1], lo[2]), gp_Pnt(hi[0], hi[1], hi[2])).Shape();
       TopoDS_Compound bodies;
       BRep_Builder b;
       b.MakeCompound(bodies);
@@ -467,17 +479,20 @@ void run(StageContext& ctx) {
   std::vector<Tag> tags;
   bool have_tags = false;
   for (int f = 0; f < in.num_faces(); ++f) have_tags |= in.face_tag(f) != Tag::none;
+  // A body's box: its faces are farfield, or symmetry on a half model's root plane (the box face
+  // the body stands on, which tags_by_box marks symmetry because wall faces meet it).
+  const bool keep_symmetry = symmetry_plane != "none";
   if (tag_mode == "box" || (tag_mode == "auto" && !have_tags)) {
     tags = cad::occt::tags_by_box(fluid, 1e-6 * diag);
     if (body_in_box)
       for (auto& t : tags)
-        if (t == Tag::symmetry) t = Tag::farfield;
+        if (t == Tag::symmetry && !keep_symmetry) t = Tag::farfield;
   } else {
     tags = cad::occt::transfer_tags(in, fluid, std::max(10 * tol, 1e-7 * diag));
     if (body_in_box) {  // new box faces
       auto bt = cad::occt::tags_by_box(fluid, 1e-6 * diag);
       for (size_t i = 0; i < tags.size(); ++i)
-        if (bt[i] != Tag::wall) tags[i] = Tag::farfield;
+        if (bt[i] != Tag::wall) tags[i] = bt[i] == Tag::symmetry && keep_symmetry ? Tag::symmetry : Tag::farfield;
     }
   }
   Shape out = cad::occt::make_shape(fluid, in.units(), tags);

@@ -89,6 +89,46 @@ void sample_curvature(const Shape& s, Analysis& a) {
   a.min_radius = kmax > 0 ? 1 / kmax : std::numeric_limits<double>::infinity();
 }
 
+// Does the body stand on one side of its bounding box, as a half model stands on its root
+// plane? Per side, the area of its planar faces lying on that side's plane. A side with such
+// faces whose opposite side has none, or less than half as much (a wing's root against its
+// smaller flat tip), is a root plane; a cylinder's or a box's two equal ends are not. Exactly
+// one root plane makes a half model.
+void find_root_plane(const Shape& s, Analysis& a, double tol) {
+  double area[3][2] = {};
+  int faces[3][2] = {};
+  for (int f : a.walls) {
+    if (s.face_surface_type(f) != "plane") continue;
+    Box fb = s.face_box(f);
+    for (int k = 0; k < 3; ++k) {
+      if (side(fb, k) > 2 * tol) continue;
+      for (int hi = 0; hi < 2; ++hi)
+        if (std::abs((hi ? fb.hi[k] : fb.lo[k]) - (hi ? a.box.hi[k] : a.box.lo[k])) <= 2 * tol)
+          area[k][hi] += s.face_area(f), ++faces[k][hi];
+    }
+  }
+  std::vector<std::string> roots;
+  std::string figures;
+  for (int k = 0; k < 3; ++k)
+    for (int hi = 0; hi < 2; ++hi) {
+      if (!faces[k][hi]) continue;
+      std::string name = std::string(1, char('x' + k)) + (hi ? "+" : "-");
+      figures += (figures.empty() ? "" : "; ") + std::to_string(faces[k][hi]) + " planar face(s) of area " +
+                 fmt(area[k][hi]) + " on its " + name + " side";
+      if (area[k][hi] >= 2 * area[k][1 - hi]) roots.push_back(name);
+    }
+  if (roots.size() == 1) {
+    a.symmetry_plane = roots[0];
+    a.stands_why = figures + ": it stands on its " + roots[0] +
+                   " side, as a half model on its root plane (the opposite side has none, or less than half that area)";
+  } else {
+    a.stands_why = figures.empty() ? "no planar face lies on a side of its bounding box"
+                                   : figures + ": " + (roots.empty() ? "no side has twice the area of its opposite side"
+                                                                     : std::to_string(roots.size()) + " sides could be a root");
+    a.stands_why += ", so it is not read as a half model";
+  }
+}
+
 }  // namespace
 
 Analysis analyse(const Shape& s) {
@@ -123,6 +163,7 @@ Analysis analyse(const Shape& s) {
     for (int e : s.face_edges(f))
       if (!s.edge_degenerate(e)) a.shortest_wall_edge = std::min(a.shortest_wall_edge, s.edge_length(e));
   sample_curvature(s, a);
+  if (!a.domain) find_root_plane(s, a, tol);
   return a;
 }
 

@@ -28,6 +28,10 @@ struct Analysis {
   cad::Vec3 min_radius_at;
   int curvature_samples = 0;
   double shortest_wall_edge = 0;
+  // A body standing on a plane (a half model's root): "x-" .. "z+" (the side of its bounding
+  // box), or "none"; `stands_why` the faces and areas that decided it.
+  std::string symmetry_plane = "none";
+  std::string stands_why;
 };
 
 // Throws StageError when the shape has no faces or no face could be a wall.

@@ -111,11 +111,21 @@ std::string workflow_text(const Options& o, const Analysis& a, const Choices& c)
     << "stages:\n";
   y << "  geometry:\n    kind: step\n    with: {file: \"" << cad_path << "\""
     << (o.units.empty() ? "" : ", units: " + o.units) << "}\n";
-  y << comment(a.domain ? "fluid: given. The file is the fluid domain: " + a.why + "."
-                        : "fluid: box. The file is a body: " + a.why + ". Its faces are walls, the box's farfield.")
-    << comment("Tags: faces on the bounding box's planes become farfield (symmetry where a wall meets them), the "
-               "others wall; " + std::to_string(a.walls.size()) + " wall face(s). Change them with tag_overrides.")
-    << "  heal: {kind: heal, needs: [geometry], with: {fluid: " << (a.domain ? "given" : "box") << "}}\n";
+  const bool half = a.symmetry_plane != "none";
+  if (a.domain)
+    y << comment("fluid: given. The file is the fluid domain: " + a.why + ".")
+      << comment("Tags: its faces on its bounding box's planes are farfield (symmetry where a wall meets them), the "
+                 "other " + std::to_string(a.walls.size()) + " face(s) walls. Change them with tag_overrides.");
+  else
+    y << comment("fluid: box. The file is a body: " + a.why + ". Its " + std::to_string(a.walls.size()) +
+                 " face(s) are walls, the box's faces farfield.")
+      << comment("symmetry_plane: " + a.symmetry_plane + ". " + a.stands_why + "." +
+                 (half ? " The box is not padded on that side and its face there is symmetry; symmetry_plane: none "
+                         "meshes the whole body in a box."
+                       : " symmetry_plane: x-|x+|y-|y+|z-|z+ makes that side of the box the symmetry plane of a half "
+                         "model."));
+  y << "  heal: {kind: heal, needs: [geometry], with: {fluid: " << (a.domain ? "given" : "box")
+    << (half ? ", symmetry_plane: " + a.symmetry_plane : std::string()) << "}}\n";
   y << "  medial: {kind: medial, needs: [heal]}\n";
   y << comment("Boundary-layer thickness " + fmt(c.thickness) + " " + u + ": " + c.thickness_why +
                ". Where walls face each other closer than that, the layer thins there.")

@@ -166,3 +166,26 @@ TEST_CASE("heal: unifying faces is not taken when its solid fails BRepCheck (the
   // the body's faces as imported (the cylinder and the hemispheres), none merged
   CHECK(s.faces_with_tag(Tag::wall).size() == (size_t)import(f)->stats_["faces"].get<int>());
 }
+
+TEST_CASE("heal: symmetry_plane puts a half model on its root plane: no padding there, that box face symmetry") {
+  fs::path f = data / "corpus/swept_wing.step";
+  if (!fs::exists(f)) return;
+  auto imp = import(f);
+  TestContext h("heal", nlohmann::json{{"fluid", "box"}, {"symmetry_plane", "z-"}}, {imp->artifact("shape")});
+  h.run();
+  Shape s = Shape::load(h.artifact("shape").path);
+  CHECK(s.watertight());
+  auto b = s.box();
+  CHECK(std::abs(b.lo.z) < 1e-6);  // the root plane z = 0 is the box's side
+  CHECK(b.hi.z > 10);               // padded by 5 x the body's largest side (2) elsewhere
+  auto sym = s.faces_with_tag(Tag::symmetry);
+  REQUIRE(sym.size() == 1);
+  CHECK(s.face_box(sym[0]).hi.z < 1e-6);
+  CHECK(s.faces_with_tag(Tag::farfield).size() == 5);
+  // the root face is gone (it lies on the symmetry face): the wing's other faces are walls
+  CHECK(s.faces_with_tag(Tag::wall).size() == (size_t)imp->stats_["faces"].get<int>() - 1);
+  CHECK(h.stats_["fixes"]["symmetry_plane"] == "z-");
+  // a given domain has no box to put on a plane
+  TestContext bad("heal", nlohmann::json{{"fluid", "given"}, {"symmetry_plane", "z-"}}, {imp->artifact("shape")});
+  CHECK_THROWS_WITH_AS(bad.run(), doctest::Contains("needs fluid: box"), StageError);
+}

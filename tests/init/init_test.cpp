@@ -41,6 +41,18 @@ TEST_CASE("init: a body goes in a far-field box, a tunnel or a solid with a void
   }
 }
 
+TEST_CASE("init: a body standing on one side of its box is a half model on that plane, equal ends are not") {
+  if (!fs::exists(data / "corpus")) return;
+  // the swept wing's root (area 0.082) on z = 0 against its flat tip (0.020): z-
+  CHECK(analysed(data / "corpus/swept_wing.step").symmetry_plane == "z-");
+  // a cylinder's two equal ends, a rounded box's six sides, a sphere's none: a whole body
+  CHECK(analysed(data / "corpus/cylinder.step").symmetry_plane == "none");
+  CHECK(analysed(data / "corpus/rounded_box.step").symmetry_plane == "none");
+  CHECK(analysed(data / "corpus/sphere.step").symmetry_plane == "none");
+  // a domain has no box of its own to put on a plane
+  CHECK(analysed(data / "corpus/cylinder_in_box.step").symmetry_plane == "none");
+}
+
 TEST_CASE("init: layer thickness, wall sizes and far-field size come from the measured shape") {
   if (!fs::exists(data / "corpus")) return;
   // sphere R 0.5: 5% of its diameter; curvature radius 0.5 asks for no refinement
