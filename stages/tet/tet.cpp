@@ -536,6 +536,21 @@ class Builder {
     }
     rep_.tetgen_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     emit(res_.output);
+    check_budget();
+  }
+
+  // The element budget: a far field sized wrongly for its body (a far field many body lengths
+  // away meshed with near-body sizes) gives millions of tetrahedra that curve, at order 4, cannot
+  // hold in memory (about 2.6 kB per element: 81 MB for the corpus capsule's 31 k). Stop here,
+  // saying what to change, rather than many minutes later out of memory.
+  void check_budget() const {
+    std::size_t n = res_.tets.size() / 4;
+    if (opt_.max_elements <= 0 || n <= (std::size_t)opt_.max_elements) return;
+    throw StageError("tet: TetGen made " + std::to_string(n) + " tetrahedra, more than max_elements " +
+                     std::to_string(opt_.max_elements) + " (about " + fmt(2.6e-6 * n) +
+                     " GB at order 4 in curve). The far field is probably meshed finer than it needs: raise "
+                     "sweep.farfield_size (the far-field boundary's element size) or tet.size_growth (how fast "
+                     "elements grow away from the body), or raise tet.max_elements if this many is intended.");
   }
 
   void emit(const std::string& text) {

@@ -52,6 +52,7 @@ struct Options {
   double pyramid_height = 0.5; // apex height / mean edge length of the quad
   int max_steiner = -1;        // -S, -1: unbounded
   int optimisation = 2;        // -O level 0..10
+  long max_elements = 5000000; // the stage stops past this many tetrahedra, 0: no bound
   int threads = 1;             // for the quality check
 };
 

@@ -20,6 +20,7 @@ Options options_from(const nlohmann::json& p, int threads) {
   o.pyramid_height = p.at("pyramid_height").get<double>();
   o.max_steiner = p.at("max_steiner_points").get<int>();
   o.optimisation = p.at("optimisation_level").get<int>();
+  o.max_elements = p.at("max_elements").get<long>();
   o.threads = threads;
   return o;
 }

@@ -612,3 +612,23 @@ TEST_CASE("tet: closed near field (sphere with prisms in a box): a hole point ke
   CHECK(inside == 0);
   CHECK(out.num_nodes() == n_in + rep.steiner_points);
 }
+
+TEST_CASE("tet: past max_elements the stage stops, saying how many and what to change") {
+  Case c;
+  Built in = build(c);
+  meshflow::tet::Options opt;
+  meshflow::tet::Report rep;
+  meshflow::tet::fill_far_field(in.mesh, opt, rep);
+  const std::size_t n = rep.tets;
+  REQUIRE(n > 100);
+  opt.max_elements = (long)n;  // exactly the count: allowed
+  meshflow::tet::Report r2;
+  CHECK_NOTHROW(meshflow::tet::fill_far_field(in.mesh, opt, r2));
+  opt.max_elements = (long)n - 1;
+  meshflow::tet::Report r3;
+  const std::string said = "TetGen made " + std::to_string(n) + " tetrahedra, more than max_elements";
+  CHECK_THROWS_WITH_AS(meshflow::tet::fill_far_field(in.mesh, opt, r3), doctest::Contains(said.c_str()), StageError);
+  opt.max_elements = 0;  // no bound
+  meshflow::tet::Report r4;
+  CHECK_NOTHROW(meshflow::tet::fill_far_field(in.mesh, opt, r4));
+}
