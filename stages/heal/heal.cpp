@@ -33,6 +33,7 @@
 #include <BRepBuilderAPI_MakeVertex.hxx>
 #include <BRepBuilderAPI_Sewing.hxx>
 #include <BRepCheck_Analyzer.hxx>
+#include <BRepClass3d.hxx>
 #include <BRepExtrema_DistShapeShape.hxx>
 #include <BRepGProp.hxx>
 #include <BRepPrimAPI_MakeBox.hxx>
@@ -186,6 +187,23 @@ std::vector<TopoDS_Shell> shells_of(const TopoDS_Shape& s) {
   fix.FixFaceOrientation(loose, Standard_True, Standard_False);
   for (TopExp_Explorer ex(fix.Shape(), TopAbs_SHELL); ex.More(); ex.Next()) out.push_back(TopoDS::Shell(ex.Current()));
   return out;
+}
+
+// A domain with holes (a far-field sphere or cylinder around a body): the faces of its outer
+// shell that the box rule left as walls (not on the bounding box's planes) are the far field.
+void outer_shell_farfield(const TopoDS_Shape& fluid, std::vector<Tag>& tags) {
+  TopoDS_Solid solid;
+  int shells = 0;
+  for (TopExp_Explorer ex(fluid, TopAbs_SOLID); ex.More(); ex.Next()) solid = TopoDS::Solid(ex.Current());
+  for (TopExp_Explorer ex(solid, TopAbs_SHELL); ex.More(); ex.Next()) ++shells;
+  if (solid.IsNull() || shells < 2) return;
+  TopoDS_Shell outer = BRepClass3d::OuterShell(solid);
+  if (outer.IsNull()) return;
+  TopTools_IndexedMapOfShape faces, outer_faces;
+  TopExp::MapShapes(fluid, TopAbs_FACE, faces);
+  TopExp::MapShapes(outer, TopAbs_FACE, outer_faces);
+  for (int i = 1; i <= faces.Extent(); ++i)
+    if (outer_faces.Contains(faces(i)) && tags[i - 1] == Tag::wall) tags[i - 1] = Tag::farfield;
 }
 
 TopoDS_Solid solid_of(const TopoDS_Shell& sh) {
@@ -487,6 +505,7 @@ void run(StageContext& ctx) {
     if (body_in_box)
       for (auto& t : tags)
         if (t == Tag::symmetry && !keep_symmetry) t = Tag::farfield;
+    outer_shell_farfield(fluid, tags);
   } else {
     tags = cad::occt::transfer_tags(in, fluid, std::max(10 * tol, 1e-7 * diag));
     if (body_in_box) {  // new box faces

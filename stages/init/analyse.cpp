@@ -49,6 +49,29 @@ bool on_box_plane(const Shape& s, int f, const Box& b, double tol) {
   return false;
 }
 
+// The faces of a domain's outer shell: those connected (through shared edges) to a face that
+// reaches the bounding box. With holes (inner shells), heal tags the outer shell farfield and the
+// inner shells walls, whatever their shapes (a far-field sphere is not on a box plane).
+std::vector<char> outer_shell(const Shape& s, const Box& b, double tol) {
+  std::vector<char> outer(s.num_faces(), 0);
+  std::vector<int> stack;
+  for (int f = 0; f < s.num_faces(); ++f) {
+    Box fb = s.face_box(f);
+    for (int k = 0; k < 3; ++k)
+      if (std::abs(fb.lo[k] - b.lo[k]) <= 2 * tol || std::abs(fb.hi[k] - b.hi[k]) <= 2 * tol) {
+        if (!outer[f]) outer[f] = 1, stack.push_back(f);
+        break;
+      }
+  }
+  while (!stack.empty()) {
+    int f = stack.back();
+    stack.pop_back();
+    for (int g : s.face_neighbours(f))
+      if (!outer[g]) outer[g] = 1, stack.push_back(g);
+  }
+  return outer;
+}
+
 // The body-or-domain rule, with the figures it used.
 void classify(const Shape& s, Analysis& a, double tol) {
   a.corners = box_corners(s, a.box, tol);
@@ -143,8 +166,9 @@ Analysis analyse(const Shape& s) {
   a.extent = largest_side(a.box);
   const double tol = 1e-6 * std::hypot(side(a.box, 0), side(a.box, 1), side(a.box, 2));
   classify(s, a, tol);
+  const std::vector<char> outer = a.domain ? outer_shell(s, a.box, tol) : std::vector<char>(a.faces, 0);
   for (int f = 0; f < a.faces; ++f)
-    if (!a.domain || !on_box_plane(s, f, a.box, tol)) a.walls.push_back(f);
+    if (!a.domain || (!on_box_plane(s, f, a.box, tol) && !(a.solids > 0 && a.shells > a.solids && outer[f]))) a.walls.push_back(f);
   if (a.walls.empty())
     throw StageError("every face of the domain lies on its bounding box: there is no body to put a boundary layer on");
   a.wall_box = s.face_box(a.walls[0]);

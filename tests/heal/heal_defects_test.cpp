@@ -9,7 +9,9 @@
 #include <BRepBuilderAPI_MakePolygon.hxx>
 #include <BRepBuilderAPI_MakeFace.hxx>
 #include <BRepBuilderAPI_Transform.hxx>
+#include <BRepAlgoAPI_Cut.hxx>
 #include <BRepPrimAPI_MakeBox.hxx>
+#include <BRepPrimAPI_MakeSphere.hxx>
 #include <BRepPrimAPI_MakePrism.hxx>
 #include <BRep_Builder.hxx>
 #include <TopExp_Explorer.hxx>
@@ -156,5 +158,22 @@ TEST_CASE("heal: fluid: box puts a closed body in a far-field box") {
   CHECK(s.faces_with_tag(meshflow::cad::Tag::wall).size() == 6);
   CHECK(s.faces_with_tag(meshflow::cad::Tag::farfield).size() == 6);
   CHECK(s.volume() == doctest::Approx(13.0 * 14 * 15 - 6).epsilon(1e-9));
+  std::filesystem::remove_all(d);
+}
+
+TEST_CASE("heal: a far-field sphere around a body (a domain with a hole) is farfield, the body wall") {
+  // a sphere R 50 around a box 1 x 2 x 3: the outer shell is on no plane of a bounding box
+  TopoDS_Shape outer = BRepPrimAPI_MakeSphere(gp_Pnt(0.5, 1, 1.5), 50).Shape();
+  TopoDS_Shape body = BRepPrimAPI_MakeBox(gp_Pnt(0, 0, 0), 1, 2, 3).Shape();
+  TopoDS_Shape domain = BRepAlgoAPI_Cut(outer, body).Shape();
+  std::filesystem::path d;
+  auto h = heal_on(domain, {{"fluid", "given"}}, d);
+  h->run();
+  Shape s = Shape::load(h->artifact("shape").path);
+  CHECK(s.watertight());
+  CHECK(s.faces_with_tag(meshflow::cad::Tag::wall).size() == 6);
+  auto far = s.faces_with_tag(meshflow::cad::Tag::farfield);
+  REQUIRE(far.size() >= 1);
+  for (int f : far) CHECK(s.face_surface_type(f) == "sphere");
   std::filesystem::remove_all(d);
 }

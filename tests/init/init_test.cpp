@@ -8,6 +8,11 @@
 
 #include <nlohmann/json.hpp>
 
+#include <BRepAlgoAPI_Cut.hxx>
+#include <BRepPrimAPI_MakeBox.hxx>
+#include <BRepPrimAPI_MakeSphere.hxx>
+#include <BRepTools.hxx>
+
 #include <filesystem>
 
 namespace fs = std::filesystem;
@@ -39,6 +44,20 @@ TEST_CASE("init: a body goes in a far-field box, a tunnel or a solid with a void
     CHECK(a.walls.size() == c.walls);
     CHECK(!a.why.empty());
   }
+}
+
+TEST_CASE("init: a far-field sphere around a body is the domain, its outer shell not a wall") {
+  fs::path dir = mftest::temp_dir("init-sphere-domain");
+  TopoDS_Shape outer = BRepPrimAPI_MakeSphere(gp_Pnt(0.5, 1, 1.5), 100).Shape();
+  TopoDS_Shape body = BRepPrimAPI_MakeBox(gp_Pnt(0, 0, 0), 1, 2, 3).Shape();
+  REQUIRE(BRepTools::Write(BRepAlgoAPI_Cut(outer, body).Shape(), (dir / "domain.brep").c_str()));
+  auto a = analysed(dir / "domain.brep");
+  CHECK(a.domain);
+  CHECK(a.walls.size() == 6);                      // the box's faces only
+  CHECK(a.wall_max == doctest::Approx(3).epsilon(1e-3));
+  auto c = choose(a);
+  CHECK(c.thickness == doctest::Approx(0.15).epsilon(1e-3));  // 5% of the body, not of the sphere
+  CHECK(c.farfield_size == doctest::Approx(0.1 * 200 / 3).epsilon(1e-3));  // a tenth of the domain
 }
 
 TEST_CASE("init: a body standing on one side of its box is a half model on that plane, equal ends are not") {
