@@ -206,6 +206,25 @@ void outer_shell_farfield(const TopoDS_Shape& fluid, std::vector<Tag>& tags) {
     if (outer_faces.Contains(faces(i)) && tags[i - 1] == Tag::wall) tags[i - 1] = Tag::farfield;
 }
 
+double diag_of(const Bnd_Box& b) { return b.IsVoid() ? 0 : std::sqrt(b.SquareExtent()); }
+
+// The length the default tolerance is relative to: the bounding-box diagonal of the shape, or,
+// when a solid has inner shells (a far field given around the body), of its smallest shell (the
+// body): a far field 100 chords away must not make the tolerance 100 times coarser on the body.
+double body_diagonal(const TopoDS_Shape& s, double whole) {
+  double d = whole;
+  for (TopExp_Explorer so(s, TopAbs_SOLID); so.More(); so.Next()) {
+    std::vector<double> shells;
+    for (TopExp_Explorer sh(so.Current(), TopAbs_SHELL); sh.More(); sh.Next()) {
+      Bnd_Box b;
+      BRepBndLib::Add(sh.Current(), b);
+      shells.push_back(diag_of(b));
+    }
+    if (shells.size() >= 2) d = std::min(d, *std::min_element(shells.begin(), shells.end()));
+  }
+  return d;
+}
+
 TopoDS_Solid solid_of(const TopoDS_Shell& sh) {
   BRepBuilderAPI_MakeSolid ms(sh);
   TopoDS_Solid so = ms.Solid();
@@ -218,7 +237,6 @@ double volume(const TopoDS_Shape& s) {
   BRepGProp::VolumeProperties(s, g);
   return g.Mass();
 }
-double diag_of(const Bnd_Box& b) { return b.IsVoid() ? 0 : std::sqrt(b.SquareExtent()); }
 
 // Self-interference of a closed solid: pairs of sub-shapes that interfere although they are
 // not adjacent, and faces whose surface crosses itself inside the face (BOPAlgo_CheckerSI, as
@@ -314,7 +332,7 @@ void run(StageContext& ctx) {
   BRepBndLib::Add(cad::occt::shape(in), bb);
   const double diag = diag_of(bb);
   double tol = P.at("tolerance").get<double>();
-  if (tol <= 0) tol = 1e-6 * diag;
+  if (tol <= 0) tol = 1e-6 * body_diagonal(cad::occt::shape(in), diag);
   const bool sew = P.at("sew").get<bool>(), small_edges = P.at("fix_small_edges").get<bool>(),
              small_faces = P.at("fix_small_faces").get<bool>(), unify = P.at("unify").get<bool>(),
              check_si = P.at("check_self_intersection").get<std::string>() != "off";
@@ -395,11 +413,19 @@ void run(StageContext& ctx) {
   {
     Shape cur = cad::occt::make_shape(s, in.units());
     auto fe = cur.free_edges();
+    // The input was closed and healing opened it: the tolerance is too coarse for the body's
+    // small features (sewing or the small-entity fixes collapsed them). Else a gap in the input.
+    const bool opened = st["before"]["free_edges"] == 0 && st["before"]["solids"].get<int>() > 0;
     if (!fe.empty())
       throw StageError(src + ": the shape is not closed after sewing with tolerance " + fmt(tol) + ": " +
-                       std::to_string(fe.size()) + " free edge(s) bound only one face (a missing face or a gap wider "
-                       "than the tolerance):" + describe_edges(cur, fe) +
-                       "\nAdd the missing face in the CAD, or raise `tolerance` if the gap is a modelling inaccuracy.");
+                       std::to_string(fe.size()) + " free edge(s) bound only one face " +
+                       (opened ? "although the input was closed (healing collapsed features smaller than the tolerance):"
+                               : "(a missing face or a gap wider than the tolerance):") +
+                       describe_edges(cur, fe) +
+                       (opened ? "\nLower `tolerance` (e.g. " + fmt(tol / 100) + "), or set sew, fix_small_edges and "
+                                 "fix_small_faces to false for CAD that is closed already."
+                               : "\nAdd the missing face in the CAD, or raise `tolerance` if the gap is a modelling "
+                                 "inaccuracy."));
     auto me = cur.multiple_edges();
     if (!me.empty())
       throw StageError(src + ": " + std::to_string(me.size()) +

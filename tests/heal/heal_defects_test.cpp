@@ -10,6 +10,7 @@
 #include <BRepBuilderAPI_MakeFace.hxx>
 #include <BRepBuilderAPI_Transform.hxx>
 #include <BRepAlgoAPI_Cut.hxx>
+#include <BRepAlgoAPI_Fuse.hxx>
 #include <BRepPrimAPI_MakeBox.hxx>
 #include <BRepPrimAPI_MakeSphere.hxx>
 #include <BRepPrimAPI_MakePrism.hxx>
@@ -175,5 +176,22 @@ TEST_CASE("heal: a far-field sphere around a body (a domain with a hole) is farf
   auto far = s.faces_with_tag(meshflow::cad::Tag::farfield);
   REQUIRE(far.size() >= 1);
   for (int f : far) CHECK(s.face_surface_type(f) == "sphere");
+  std::filesystem::remove_all(d);
+}
+
+TEST_CASE("heal: the default tolerance is relative to the body, not to a far field given around it") {
+  // a box with a step 1e-4 high on its top, in a sphere R 100: 1e-6 of the domain's diagonal
+  // (3.5e-4) is wider than the step's faces; 1e-6 of the body's (3.7e-6) is not
+  TopoDS_Shape body = BRepAlgoAPI_Fuse(BRepPrimAPI_MakeBox(gp_Pnt(0, 0, 0), 1, 2, 3).Shape(),
+                                       BRepPrimAPI_MakeBox(gp_Pnt(0.25, 0.5, 3), 0.5, 1, 1e-4).Shape()).Shape();
+  TopoDS_Shape domain = BRepAlgoAPI_Cut(BRepPrimAPI_MakeSphere(gp_Pnt(0.5, 1, 1.5), 100).Shape(), body).Shape();
+  const int faces = occt::make_shape(domain, "m").num_faces();
+  std::filesystem::path d;
+  auto h = heal_on(domain, {{"fluid", "given"}}, d);
+  h->run();
+  Shape s = Shape::load(h->artifact("shape").path);
+  CHECK(s.watertight());
+  CHECK(h->stats_["tolerance"].get<double>() == doctest::Approx(1e-6 * std::sqrt(1 + 4 + 9.0002)).epsilon(1e-3));
+  CHECK(s.num_faces() == faces);  // the step's four 1e-4 wide faces are kept
   std::filesystem::remove_all(d);
 }
