@@ -28,6 +28,7 @@
 #include <BOPDS_DS.hxx>
 #include <BOPDS_MapOfPair.hxx>
 #include <BRepAlgoAPI_Cut.hxx>
+#include <BRepAlgoAPI_Fuse.hxx>
 #include <BRepBndLib.hxx>
 #include <BRepBuilderAPI_MakeSolid.hxx>
 #include <BRepBuilderAPI_MakeVertex.hxx>
@@ -208,6 +209,30 @@ void outer_shell_farfield(const TopoDS_Shape& fluid, std::vector<Tag>& tags) {
 
 double diag_of(const Bnd_Box& b) { return b.IsVoid() ? 0 : std::sqrt(b.SquareExtent()); }
 
+// The solids of `s` fused into one body (BRepAlgoAPI_Fuse, then the faces the fusion split on
+// one surface unified); `s` as it is with fewer than two solids or when the solids are apart.
+TopoDS_Shape fuse_solids(const TopoDS_Shape& s, json& fixes, StageContext& ctx) {
+  TopTools_ListOfShape first, rest;
+  int n = 0;
+  for (TopExp_Explorer ex(s, TopAbs_SOLID); ex.More(); ex.Next()) (n++ ? rest : first).Append(ex.Current());
+  if (n < 2) return s;
+  BRepAlgoAPI_Fuse fuse;
+  fuse.SetArguments(first);
+  fuse.SetTools(rest);
+  fuse.Build();
+  if (!fuse.IsDone() || fuse.HasErrors())
+    throw StageError("heal: fusing the body's " + std::to_string(n) +
+                     " solids failed in OpenCASCADE; fuse them in the CAD system, or give them as separate files");
+  ShapeUpgrade_UnifySameDomain un(fuse.Shape(), Standard_True, Standard_True, Standard_False);
+  un.Build();
+  TopoDS_Shape out = un.Shape();
+  int after = 0;
+  for (TopExp_Explorer ex(out, TopAbs_SOLID); ex.More(); ex.Next()) ++after;
+  fixes["solids_fused"] = {{"before", n}, {"after", after}};
+  ctx.log("heal: the body's " + std::to_string(n) + " solids fused into " + std::to_string(after));
+  return out;
+}
+
 // The length the default tolerance is relative to: the bounding-box diagonal of the shape, or,
 // when a solid has inner shells (a far field given around the body), of its smallest shell (the
 // body): a far field 100 chords away must not make the tolerance 100 times coarser on the body.
@@ -350,6 +375,9 @@ void run(StageContext& ctx) {
   if (in.num_faces() == 0) throw StageError(src + ": the input shape has no faces: nothing to heal");
 
   try {
+    // 0. a body made of several solids (a wing and a fuselage, parts that share faces or
+    // overlap) is one body: fused before anything is sewn or cut, so their shared faces go
+    if (fluid_mode == "box") s = fuse_solids(s, fixes, ctx);
     // 1-2. duplicates, sewing
     if (sew) {
       ctx.progress(0.05, "duplicate faces");

@@ -195,3 +195,31 @@ TEST_CASE("heal: the default tolerance is relative to the body, not to a far fie
   CHECK(s.num_faces() == faces);  // the step's four 1e-4 wide faces are kept
   std::filesystem::remove_all(d);
 }
+
+TEST_CASE("heal: a body of several solids (sharing a face, overlapping) is fused before it is cut from the box") {
+  // box A and box B share the face x = 1; sphere C overlaps B
+  TopoDS_Compound parts;
+  BRep_Builder b;
+  b.MakeCompound(parts);
+  b.Add(parts, BRepPrimAPI_MakeBox(gp_Pnt(0, 0, 0), 1, 1, 1).Shape());
+  b.Add(parts, BRepPrimAPI_MakeBox(gp_Pnt(1, 0, 0), 1, 1, 1).Shape());
+  b.Add(parts, BRepPrimAPI_MakeSphere(gp_Pnt(2, 0.5, 0.5), 0.25).Shape());
+  std::filesystem::path d;
+  auto h = heal_on(parts, {{"fluid", "box"}, {"box_padding", 1.0}}, d);
+  h->run();
+  Shape s = Shape::load(h->artifact("shape").path);
+  CHECK(s.watertight());
+  CHECK(h->stats_["fixes"]["solids_fused"]["before"] == 3);
+  CHECK(h->stats_["fixes"]["solids_fused"]["after"] == 1);
+  // the body's volume: two unit boxes and the half of the sphere outside them
+  const double half_sphere = 2.0 / 3 * 3.14159265358979 * 0.25 * 0.25 * 0.25;
+  auto bb = s.box();
+  double box = (bb.hi.x - bb.lo.x) * (bb.hi.y - bb.lo.y) * (bb.hi.z - bb.lo.z);
+  CHECK(box - s.volume() == doctest::Approx(2 + half_sphere).epsilon(1e-4));
+  // no face inside the body: every wall face is on its outside (none at x = 1 between A and B)
+  for (int f : s.faces_with_tag(meshflow::cad::Tag::wall)) {
+    auto fb = s.face_box(f);
+    CHECK(!(fb.hi.x - fb.lo.x < 1e-9 && std::abs(fb.lo.x - 1) < 1e-9));
+  }
+  std::filesystem::remove_all(d);
+}
