@@ -20,6 +20,8 @@ constexpr double kPi = 3.14159265358979323846;
 struct Lines {
   std::vector<std::string> v;
   explicit Lines(std::string_view t) {
+    // a UTF-8 byte order mark (spreadsheet exports write one) is not part of the first line
+    if (t.substr(0, 3) == "\xEF\xBB\xBF") t.remove_prefix(3);
     size_t i = 0;
     while (i < t.size()) {
       size_t j = t.find('\n', i);

@@ -2,6 +2,7 @@
 
 #include "../cad/test_context.hpp"
 #include "stages/cad/cad.hpp"
+#include "stages/geometry/blade_sections.hpp"
 
 #include <cmath>
 #include <filesystem>
@@ -237,7 +238,18 @@ TEST_CASE("blade_sector: CSV sections, scale and units, byte-identical reruns") 
   TestContext again("blade_sector", P);
   again.run();
   CHECK(slurp(ctx.artifact("shape").path) == slurp(again.artifact("shape").path));
-  // scale 1000 to mm
+  // a UTF-8 byte order mark before the header (spreadsheet exports) reads the same sections
+  {
+    std::ofstream bom(dir / "bom.csv", std::ios::binary);
+    bom << "\xEF\xBB\xBF" << slurp(dir / "blade.csv");
+  }
+  auto plain = meshflow::geometry::parse_blade_csv(slurp(dir / "blade.csv"), "blade.csv");
+  auto with_bom = meshflow::geometry::parse_blade_csv(slurp(dir / "bom.csv"), "bom.csv");
+  REQUIRE(with_bom.loops.size() == plain.loops.size());
+  for (size_t k = 0; k < plain.loops.size(); ++k) {
+    REQUIRE(with_bom.loops[k].size() == plain.loops[k].size());
+    for (size_t i = 0; i < plain.loops[k].size(); ++i) CHECK(with_bom.loops[k][i].t == plain.loops[k][i].t);
+  }
   // csv without blades: refused
   TestContext nob("blade_sector", {{"file", (dir / "blade.csv").string()}, {"format", "csv"}});
   CHECK_THROWS_WITH_AS(nob.run(), doctest::Contains("blades"), StageError);
