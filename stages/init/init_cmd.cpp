@@ -3,6 +3,7 @@
 // workflow a user can run as it is, every choice commented with the figure it came from.
 #include "engine/command.hpp"
 #include "engine/stage.hpp"
+#include "stages/geometry/blade_sections.hpp"
 #include "stages/geometry/import.hpp"
 #include "stages/init/init.hpp"
 
@@ -11,18 +12,20 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <iterator>
 #include <sstream>
 
 namespace meshflow::init {
 namespace {
 namespace fs = std::filesystem;
 
-constexpr const char* kUsage = "init CAD_FILE [-o WORKFLOW] [--units U] [--order P] [--layers N] [--force]";
+constexpr const char* kUsage =
+    "init CAD_FILE|SECTIONS [-o WORKFLOW] [--units U] [--order P] [--layers N] [--blades N] [--force]";
 
 struct Options {
   fs::path cad, out;
   std::string units;
-  int order = 4, layers = 10;
+  int order = 4, layers = 10, blades = 0;
   bool force = false;
 };
 
@@ -54,13 +57,14 @@ int parse(const std::vector<std::string>& args, Options& o) {
     bool has_value = i + 1 < args.size();
     if (a == "--force") {
       o.force = true;
-    } else if (a == "-o" || a == "--output" || a == "--units" || a == "--order" || a == "--layers") {
+    } else if (a == "-o" || a == "--output" || a == "--units" || a == "--order" || a == "--layers" || a == "--blades") {
       if (!has_value) return usage_error(a + " needs a value");
       const std::string& v = args[++i];
       if (a == "-o" || a == "--output") o.out = v;
       else if (a == "--units") o.units = v;
       else if (a == "--order" && !integer(a, v, 2, 6, o.order)) return 2;
       else if (a == "--layers" && !integer(a, v, 1, 100, o.layers)) return 2;
+      else if (a == "--blades" && !integer(a, v, 1, 1000, o.blades)) return 2;
     } else if (!a.empty() && a[0] == '-') {
       return usage_error("unknown option " + a);
     } else if (o.cad.empty()) {
@@ -81,6 +85,14 @@ std::string workflow_name(const fs::path& cad) {
   std::string n;
   for (char c : cad.stem().string()) n += std::isalnum((unsigned char)c) ? (char)std::tolower((unsigned char)c) : '-';
   return n.empty() ? "mesh" : n;
+}
+
+// A path as a YAML flow scalar: plain when it can be, else double-quoted.
+std::string yaml_path(const std::string& p) {
+  if (!p.empty() && p.find_first_of(":#{}[],&*?|<>=!%@`'\"\\ ") == std::string::npos && p[0] != '-') return p;
+  std::string q = "\"";
+  for (char c : p) q += (c == '"' || c == '\\') ? std::string("\\") + c : std::string(1, c);
+  return q + "\"";
 }
 
 // A comment above a stage, wrapped at 100 columns.
@@ -109,7 +121,7 @@ std::string workflow_text(const Options& o, const Analysis& a, const Choices& c)
     << "meshflow: 1\n"
     << "name: " << workflow_name(o.cad) << "\n"
     << "stages:\n";
-  y << "  geometry:\n    kind: step\n    with: {file: \"" << cad_path << "\""
+  y << "  geometry:\n    kind: step\n    with: {file: " << yaml_path(cad_path)
     << (o.units.empty() ? "" : ", units: " + o.units) << "}\n";
   const bool half = a.symmetry_plane != "none";
   if (a.domain)
@@ -151,20 +163,66 @@ std::string workflow_text(const Options& o, const Analysis& a, const Choices& c)
   return y.str();
 }
 
-int init_cmd(const std::vector<std::string>& args) {
-  Options o;
-  if (int rc = parse(args, o)) return rc;
-  Analysis a;
-  Choices c;
-  try {
-    cad::Shape shape = geometry::import_cad(o.cad, o.units, 1.0, [](const std::string&) {});
-    a = analyse(shape);
-    c = choose(a);
-  } catch (const std::exception& e) {
-    std::cerr << "meshflow init: " << o.cad.string() << ": " << e.what() << "\n";
-    return 2;
-  }
-  std::string text = workflow_text(o, a, c);
+// A blade row's section file (Rotor 67's export, or CSV sections): read with the blade_sector
+// kind's own parsers, for the format, the blade count and the figures in the comments.
+bool is_section_file(const fs::path& p) {
+  std::string e = p.extension().string();
+  for (auto& c : e) c = (char)std::tolower((unsigned char)c);
+  return e == ".csv" || e == ".dat" || e == ".txt";
+}
+
+std::string blade_workflow_text(const Options& o) {
+  std::ifstream in(o.cad, std::ios::binary);
+  if (!in) throw StageError("cannot read the section file '" + o.cad.string() + "'");
+  std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const bool rotor67 = text.find("Surface number") != std::string::npos || text.find("SURFACE NUMBER") != std::string::npos;
+  geometry::BladeSections bs = rotor67 ? geometry::parse_rotor67(text, o.cad.string())
+                                       : geometry::parse_blade_csv(text, o.cad.string());
+  int blades = o.blades ? o.blades : bs.blades;
+  if (blades <= 0)
+    throw StageError("the section file does not say how many blades the row has: give --blades N");
+  double hub = 1e300, casing = 0, x0 = 1e300, x1 = -1e300;
+  for (auto& l : bs.loops)
+    for (auto& p : l) hub = std::min(hub, p.r), casing = std::max(casing, p.r), x0 = std::min(x0, p.x), x1 = std::max(x1, p.x);
+  const std::string u = o.units.empty() ? (rotor67 ? "ft" : "m") : o.units;
+  fs::path out_dir = fs::absolute(o.out).parent_path();
+  std::string file = fs::relative(fs::absolute(o.cad), out_dir).generic_string();
+  std::ostringstream y;
+  y << "# Written by `meshflow init " << o.cad.filename().string() << "`: a blade row of " << blades << " blades, "
+    << bs.loops.size() << " sections (" << (rotor67 ? "NASA Rotor 67 export" : "CSV") << "), in " << u << ".\n"
+    << "# Blade: radius " << fmt(hub) << " to " << fmt(casing) << ", axial extent " << fmt(x1 - x0) << " " << u
+    << "; one passage, a 2*pi/" << blades << " sector with periodic sides.\n"
+    << "# Change any value and `meshflow run` reruns only the stages it affects.\n"
+    << "meshflow: 1\n"
+    << "name: " << workflow_name(o.cad) << "\n"
+    << "stages:\n";
+  y << comment("Inflow and outflow planes one axial chord (" + fmt(x1 - x0) + " " + u + ") from the blade; " +
+               (o.blades ? "--blades " + std::to_string(blades) : "the file's " + std::to_string(blades) + " blades") + ".")
+    << "  geometry:\n    kind: blade_sector\n    with: {file: " << yaml_path(file) << ", format: " << (rotor67 ? "rotor67" : "csv")
+    << ", blades: " << blades << (o.units.empty() ? "" : ", units: " + o.units) << ", upstream: 1.0, downstream: 1.0}\n"
+    << "  heal: {kind: heal, needs: [geometry]}\n"
+    << "  medial: {kind: medial, needs: [heal]}\n";
+  y << comment("Layer thickness 2% and smallest wall element 0.1% of the walls' largest side (blade, hub and casing): "
+               "the values Rotor 67 runs valid with; the shell thins the layer where walls face each other closer.")
+    << "  shell: {kind: shell, needs: [heal, medial], with: {thickness: 0.02, topology: C}}\n"
+    << "  balance: {kind: balance, needs: [heal, shell], with: {turn_angle_deg: 30, min_size: 0.001}}\n";
+  y << comment("The periodic sides get the same surface mesh, rotated by 2*pi/" + std::to_string(blades) + ".")
+    << "  periodic_match: {kind: periodic_match, needs: [heal, balance]}\n"
+    << "  sweep: {kind: sweep, needs: [heal, shell, balance, periodic_match]}\n"
+    << "  tet: {kind: tet, needs: [sweep]}\n";
+  y << comment("Polynomial order " + std::to_string(o.order) + "; " + std::to_string(o.layers) +
+               " layers across the boundary layer, growing by 1.3 from the wall.")
+    << "  curve: {kind: curve, needs: [heal, tet], with: {order: " << o.order << "}}\n"
+    << "  optimise: {kind: optimise, needs: [heal, curve]}\n"
+    << "  split: {kind: split, needs: [optimise], with: {layers: " << o.layers << ", ratio: 1.3}}\n";
+  y << "outputs:\n"
+    << "  shape: {from: heal, formats: [step]}\n"
+    << "  mesh: {from: split, formats: [msh, vtu, nektar]}\n";
+  return y.str();
+}
+
+// Writes `text` to o.out through a temporary file (no partial workflow on failure).
+int write_workflow(const Options& o, const std::string& text) {
   fs::path tmp = o.out;
   tmp += ".tmp";
   {
@@ -176,6 +234,36 @@ int init_cmd(const std::vector<std::string>& args) {
     }
   }
   fs::rename(tmp, o.out);
+  return 0;
+}
+
+int init_cmd(const std::vector<std::string>& args) {
+  Options o;
+  if (int rc = parse(args, o)) return rc;
+  if (is_section_file(o.cad)) {
+    std::string text;
+    try {
+      text = blade_workflow_text(o);
+    } catch (const std::exception& e) {
+      std::cerr << "meshflow init: " << o.cad.string() << ": " << e.what() << "\n";
+      return 2;
+    }
+    if (int rc = write_workflow(o, text)) return rc;
+    std::cout << "wrote " << o.out.string() << ": a blade row passage, order " << o.order << ", " << o.layers
+              << " layers\nrun it: meshflow run " << o.out.string() << "\n";
+    return 0;
+  }
+  Analysis a;
+  Choices c;
+  try {
+    cad::Shape shape = geometry::import_cad(o.cad, o.units, 1.0, [](const std::string&) {});
+    a = analyse(shape);
+    c = choose(a);
+  } catch (const std::exception& e) {
+    std::cerr << "meshflow init: " << o.cad.string() << ": " << e.what() << "\n";
+    return 2;
+  }
+  if (int rc = write_workflow(o, workflow_text(o, a, c))) return rc;
   std::cout << "wrote " << o.out.string() << ": " << (a.domain ? "a fluid domain" : "a body in a far-field box") << ", "
             << a.walls.size() << " wall face(s), layer " << fmt(c.thickness) << " " << a.units << ", order " << o.order
             << ", " << o.layers << " layers\nrun it: meshflow run " << o.out.string() << "\n";

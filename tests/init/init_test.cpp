@@ -13,6 +13,7 @@
 #include <BRepPrimAPI_MakeSphere.hxx>
 #include <BRepTools.hxx>
 
+#include <cmath>
 #include <filesystem>
 
 namespace fs = std::filesystem;
@@ -145,4 +146,41 @@ TEST_CASE("init: the capsule's workflow, written by init and run as it is, ends 
   CHECK(split["mesh"]["elements"]["prism"] > 0);
   CHECK(split["problems"].empty());
   CHECK(fs::exists(dir / "out/mesh.msh"));
+}
+
+TEST_CASE("init: a blade row's section file (Rotor 67's export, CSV with --blades) gives a passage workflow") {
+  fs::path dir = mftest::temp_dir("init-blades");
+  fs::path r67 = data / "rotor67/rotor67geometry.dat";
+  if (fs::exists(r67)) {
+    REQUIRE(mftest::run_cli({"init", r67.string(), "-o", (dir / "r67.yaml").string()}).code == 0);
+    std::string t = mftest::read_text(dir / "r67.yaml");
+    CHECK(t.find("format: rotor67, blades: 22") != std::string::npos);  // the file's NB
+    CHECK(t.find("periodic_match: {kind: periodic_match") != std::string::npos);
+  }
+  // CSV sections of a staggered elliptic blade, r = 1 .. 2, written by a spreadsheet (BOM, header)
+  std::string csv = "\xEF\xBB\xBFx,y,z\n";
+  for (int k = 0; k < 5; ++k) {
+    double r = 1.0 + 0.25 * k, stagger = 0.5 + 0.2 * k;
+    for (int i = 0; i < 40; ++i) {
+      double a = 2 * M_PI * i / 40, xs = 0.15 * std::cos(a), ys = 0.015 * std::sin(a);
+      double x = xs * std::cos(stagger) - ys * std::sin(stagger), rt = xs * std::sin(stagger) + ys * std::cos(stagger);
+      csv += std::to_string(x) + "," + std::to_string(r * std::cos(rt / r)) + "," + std::to_string(r * std::sin(rt / r)) + "\n";
+    }
+    csv += "\n";
+  }
+  mftest::write_text(dir / "blade.csv", csv);
+  auto no_count = mftest::run_cli({"init", (dir / "blade.csv").string(), "-o", (dir / "b.yaml").string()});
+  CHECK(no_count.code == 2);
+  CHECK(no_count.err.find("--blades") != std::string::npos);
+  CHECK(!fs::exists(dir / "b.yaml"));
+  REQUIRE(mftest::run_cli({"init", (dir / "blade.csv").string(), "-o", (dir / "b.yaml").string(), "--blades", "12"}).code == 0);
+  CHECK(mftest::read_text(dir / "b.yaml").find("format: csv, blades: 12") != std::string::npos);
+  // its geometry and heal stages run as written: a closed passage
+  std::string short_wf = mftest::workflow_without(dir / "b.yaml", dir / "short.yaml",
+      {"medial", "shell", "balance", "periodic_match", "sweep", "tet", "curve", "optimise", "split", "mesh"});
+  auto run = mftest::sh(std::string(MESHFLOW_EXE) + " run " + short_wf + " --cache " + (dir / "cache").string() +
+                        " --out " + (dir / "out").string() + " 2>&1");
+  CAPTURE(run.out);
+  CHECK(run.code == 0);
+  CHECK(mftest::stage_stats(dir / "out", "heal")["watertight"] == true);
 }
