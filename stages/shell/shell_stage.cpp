@@ -1956,7 +1956,9 @@ struct Stage {
       stats["not_honoured"]["limited_by_face_width"] = {
           {"stations", width_limited_stations}, {"min", width_limit_min}, {"at", width_limit_at}};
     stats["corner_balls_ignored"] = corner_balls;
-    stats["local_thinning"] = thinning;
+    // only when it acts (a sample thinned, or a gap ball taken for a corner): other shells, and
+    // the goldens that hold their stats, keep their bytes
+    if (thinning.at("samples").get<long>() > 0 || unresolved_corner_balls > 0) stats["local_thinning"] = thinning;
     stats["self_intersections"] = inter.pairs;
     if (crossing_rounds > 0)  // only when it acts: shells that never crossed keep their bytes
       stats["not_honoured"]["thinned_for_crossings"] = {{"rounds", crossing_rounds},
