@@ -566,16 +566,19 @@ struct Stage {
   }
 
   [[noreturn]] void refuse(double frac_below, std::size_t kmin) const {
-    const double Tw = std::min(T, workable_thickness());
+    // rounded down to 3 significant digits, so that the figure printed still fits
+    const double Tw0 = std::min(T, workable_thickness()), q = std::pow(10.0, std::floor(std::log10(Tw0)) - 2);
+    const double Tw = Tw0 > 0 ? std::floor(Tw0 / q) * q : Tw0;
     const bool rel = P.at("thickness_relative_to") == "wall_box";
     std::ostringstream o;
     o.precision(4);
-    o << "shell: the requested thickness " << T << " is more than the fluid domain can hold over most of the wall: on "
-      << 100 * frac_below << "% of the wall area (more than max_thinned_area = " << 100 * max_thinned_area
-      << "%) alpha x medial radius allows less than " << thin_fraction << " x " << T << " (alpha = " << alpha
-      << "); the narrowest place is " << place(kmin) << ", where the layer could be " << ws_t[kmin]
-      << " thick. Use a thickness of at most " << Tw;
-    if (rel) o << " (thickness: " << Tw / Lref << " with thickness_relative_to: wall_box, x " << Lref << ")";
+    o << "shell: the requested thickness " << T;
+    if (rel) o << " (thickness " << T / Lref << " x the wall box's largest side " << Lref << ")";
+    o << " is more than the fluid domain can hold over most of the wall: on " << 100 * frac_below
+      << "% of the wall area (more than max_thinned_area = " << 100 * max_thinned_area << "%) alpha x medial radius allows less than "
+      << thin_fraction << " x " << T << " (alpha = " << alpha << "); the narrowest place is " << place(kmin)
+      << ", where the layer could be " << ws_t[kmin] << " thick. Use a thickness of at most " << Tw;
+    if (rel) o << " (thickness: " << Tw / Lref << " with thickness_relative_to: wall_box)";
     o << ", or increase alpha (at most 1)";
     throw StageError(o.str());
   }
