@@ -135,26 +135,52 @@ class CadModel : public BoundaryModel {
     std::vector<std::vector<std::pair<double, double>>> loops;
   };
   std::vector<FacePoly> polys_;
+  // One edge use as N + 1 uv points (its end included) and the largest chord sag; `pcurve` selects the seam's p-curve (the use's own orientation unless swapped).
+  using UVLoop = std::vector<std::pair<double, double>>;
+  UVLoop use_points(int f, const cad::EdgeUse& eu, bool pcurve, double& sag) const {
+    const int N = 64;
+    auto r = s_.edge_range(eu.edge);
+    UVLoop pts;
+    for (int k = 0; k < N; ++k) {
+      double a = eu.reversed ? 1.0 - double(k) / N : double(k) / N;
+      double an = eu.reversed ? 1.0 - double(k + 1) / N : double(k + 1) / N;
+      double t = r.lo + a * (r.hi - r.lo), tn = r.lo + an * (r.hi - r.lo);
+      auto p0 = s_.edge_uv(eu.edge, f, t, pcurve), p1 = s_.edge_uv(eu.edge, f, tn, pcurve);
+      auto pm = s_.edge_uv(eu.edge, f, 0.5 * (t + tn), pcurve);
+      sag = std::max(sag, std::hypot(pm.u - 0.5 * (p0.u + p1.u), pm.v - 0.5 * (p0.v + p1.v)));
+      pts.push_back({p0.u, p0.v});
+      if (k == N - 1) pts.push_back({p1.u, p1.v});  // the end, which the next use starts from
+    }
+    return pts;
+  }
+  // A wire as a uv polygon. A seam's two uses each take the p-curve that continues the chain
+  // from where the previous use ended: the wire's orientations do not always select them so
+  // (NekMesh's cylinder after heal's unify: the seam's REVERSED use gave the u = 0 p-curve right
+  // after the top circle ended at u = 2 pi, a bow-tie polygon that classified a band beside each
+  // junction circle, half way round, as outside: the face went unsampled there, up to 9e-3 from
+  // the circle, and its Delaunay balls left gaps that the shell took for narrow passages).
+  UVLoop wire_loop(int f, const std::vector<cad::EdgeUse>& wire, double& sag) const {
+    UVLoop loop;
+    std::pair<double, double> end{};
+    for (auto& eu : wire) {
+      UVLoop pts = use_points(f, eu, eu.reversed, sag);
+      if (!loop.empty() && s_.edge_is_seam(eu.edge, f)) {
+        UVLoop other = use_points(f, eu, !eu.reversed, sag);
+        auto gap = [&](const UVLoop& c) { return std::hypot(c.front().first - end.first, c.front().second - end.second); };
+        if (gap(other) < gap(pts)) pts = std::move(other);
+      }
+      end = pts.back();
+      loop.insert(loop.end(), pts.begin(), pts.end() - 1);
+    }
+    return loop;
+  }
   void build_poly(int f) {
     FacePoly fp;
     try {
       auto b = s_.face_uv_bounds(f);
       double sag = 0;
       for (auto& wire : s_.face_wires(f)) {
-        std::vector<std::pair<double, double>> loop;
-        for (auto& eu : wire) {
-          auto r = s_.edge_range(eu.edge);
-          const int N = 64;
-          for (int k = 0; k < N; ++k) {
-            double a = eu.reversed ? 1.0 - double(k) / N : double(k) / N;
-            double an = eu.reversed ? 1.0 - double(k + 1) / N : double(k + 1) / N;
-            double t = r.lo + a * (r.hi - r.lo), tn = r.lo + an * (r.hi - r.lo);
-            auto p0 = s_.edge_uv(eu.edge, f, t, eu.reversed), p1 = s_.edge_uv(eu.edge, f, tn, eu.reversed);
-            auto pm = s_.edge_uv(eu.edge, f, 0.5 * (t + tn), eu.reversed);
-            sag = std::max(sag, std::hypot(pm.u - 0.5 * (p0.u + p1.u), pm.v - 0.5 * (p0.v + p1.v)));
-            loop.push_back({p0.u, p0.v});
-          }
-        }
+        UVLoop loop = wire_loop(f, wire, sag);
         if (loop.size() >= 3) fp.loops.push_back(std::move(loop));
       }
       double ext = std::max(b.u1 - b.u0, b.v1 - b.v0);

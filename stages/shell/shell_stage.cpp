@@ -537,6 +537,10 @@ struct Stage {
                 {"at", M.samples[ws[kmin]].p},
                 {"where", place(kmin)},
                 {"corner_balls_unresolved", unresolved_corner_balls}};
+    if (unresolved_corner_balls > 0)
+      ctx.log("shell: " + std::to_string(unresolved_corner_balls) +
+              " fluid balls beside treated concave edges are nearer the wall than any sample (sampling gaps): corner balls, "
+              "the layer is not thinned for them");
     if (frac_below > max_thinned_area) refuse(frac_below, kmin);
     if (thinned > 0) {
       std::ostringstream o;
