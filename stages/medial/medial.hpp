@@ -51,7 +51,12 @@
 //    contact sample's (u,v) (accepted when it is within two spacings of the contact, else only
 //    if the face classifier says it is inside the trimmed face), never above R.
 //    (The stage classifies (u,v) points against each face's wires as uv polygons and calls the
-//    exact OCCT classifier only within 4× the polygons' measured chord error of the boundary.)
+//    exact OCCT classifier only within 4× the polygons' measured chord error of the boundary. On a
+//    face with a seam the polygon must classify like OCCT on both sides of its own boundary,
+//    else the seam's p-curves are chosen by continuity in (u,v) instead of by the names of the
+//    wire's orientations (after heal's unify NekMesh's cylinder face named them the other way
+//    round: a bow-tie polygon, half of each junction circle unsampled), else OCCT classifies
+//    that face alone; stats.uv_polygons counts them when it happens.)
 // 5. Local feature size at every sample: the distance to the nearest medial point (either side).
 // 6. Halos: a fluid-side medial ball whose contacts lie on two faces with no face in common
 //    (an edge or vertex sample belongs to all its faces) is where the offsets of those faces

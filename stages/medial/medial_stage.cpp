@@ -57,6 +57,8 @@ class CadModel : public BoundaryModel {
     }
   }
   bool all_refined_fallback() const { return all_refined_fallback_; }
+  // faces whose seam p-curves were chosen by continuity / classified by OCCT alone (build_poly)
+  std::pair<long, long> polygon_fixes() const { return {seam_polygons_by_continuity_, polygons_refused_}; }
 
   int num_faces() const override { return s_.num_faces(); }
   std::array<double, 4> face_bounds(int f) const override {
@@ -74,25 +76,11 @@ class CadModel : public BoundaryModel {
   }
   // Even-odd test against the face's wires as uv polygons (64 points per edge use); points
   // within `band` of a polygon (4x the largest measured chord deviation) go to the exact
-  // OCCT classifier, as do faces whose polygons could not be built.
+  // OCCT classifier, as do faces whose polygons could not be built or disagree with it (build_poly).
   bool face_contains(int f, double u, double v) const override {
     const FacePoly& fp = polys_[f];
     if (!fp.ok) return s_.face_contains_uv(f, u, v, 1e-9);
-    bool in = false;
-    double dmin = INFINITY;
-    for (auto& loop : fp.loops) {
-      const std::size_t n = loop.size();
-      for (std::size_t i = 0, j = n - 1; i < n; j = i++) {
-        auto [ui, vi] = loop[i];
-        auto [uj, vj] = loop[j];
-        if ((vi > v) != (vj > v) && u < (uj - ui) * (v - vi) / (vj - vi) + ui) in = !in;
-        double du = uj - ui, dv = vj - vi, l2 = du * du + dv * dv;
-        double t = l2 > 0 ? std::clamp(((u - ui) * du + (v - vi) * dv) / l2, 0.0, 1.0) : 0.0;
-        dmin = std::min(dmin, std::hypot(u - ui - t * du, v - vi - t * dv));
-      }
-    }
-    if (dmin <= fp.band) return s_.face_contains_uv(f, u, v, 1e-9);
-    return in;
+    return polygon_contains(f, fp, u, v);
   }
   bool face_refined(int f) const override { return refined_[f]; }
   int num_edges() const override { return s_.num_edges(); }
@@ -135,38 +123,120 @@ class CadModel : public BoundaryModel {
     std::vector<std::vector<std::pair<double, double>>> loops;
   };
   std::vector<FacePoly> polys_;
+  // One edge use as N + 1 uv points (its end included) and the largest chord sag; `pcurve`
+  // selects the seam's p-curve.
+  using UVLoop = std::vector<std::pair<double, double>>;
+  UVLoop use_points(int f, const cad::EdgeUse& eu, bool pcurve, double& sag) const {
+    const int N = 64;
+    auto r = s_.edge_range(eu.edge);
+    UVLoop pts;
+    for (int k = 0; k < N; ++k) {
+      double a = eu.reversed ? 1.0 - double(k) / N : double(k) / N;
+      double an = eu.reversed ? 1.0 - double(k + 1) / N : double(k + 1) / N;
+      double t = r.lo + a * (r.hi - r.lo), tn = r.lo + an * (r.hi - r.lo);
+      auto p0 = s_.edge_uv(eu.edge, f, t, pcurve), p1 = s_.edge_uv(eu.edge, f, tn, pcurve);
+      auto pm = s_.edge_uv(eu.edge, f, 0.5 * (t + tn), pcurve);
+      sag = std::max(sag, std::hypot(pm.u - 0.5 * (p0.u + p1.u), pm.v - 0.5 * (p0.v + p1.v)));
+      pts.push_back({p0.u, p0.v});
+      if (k == N - 1) pts.push_back({p1.u, p1.v});  // the end, which the next use starts from
+    }
+    return pts;
+  }
+  bool polygon_contains(int f, const FacePoly& fp, double u, double v) const {
+    bool in = false;
+    double dmin = INFINITY;
+    for (auto& loop : fp.loops) {
+      const std::size_t n = loop.size();
+      for (std::size_t i = 0, j = n - 1; i < n; j = i++) {
+        auto [ui, vi] = loop[i];
+        auto [uj, vj] = loop[j];
+        if ((vi > v) != (vj > v) && u < (uj - ui) * (v - vi) / (vj - vi) + ui) in = !in;
+        double du = uj - ui, dv = vj - vi, l2 = du * du + dv * dv;
+        double t = l2 > 0 ? std::clamp(((u - ui) * du + (v - vi) * dv) / l2, 0.0, 1.0) : 0.0;
+        dmin = std::min(dmin, std::hypot(u - ui - t * du, v - vi - t * dv));
+      }
+    }
+    if (dmin <= fp.band) return s_.face_contains_uv(f, u, v, 1e-9);
+    return in;
+  }
+  // A wire as a uv polygon, each use on the p-curve its orientation names, or (by_continuity) a
+  // seam's uses after the first on whichever of its two p-curves starts where the previous use
+  // ended.
+  UVLoop wire_loop(int f, const std::vector<cad::EdgeUse>& wire, bool by_continuity, double& sag) const {
+    UVLoop loop;
+    std::pair<double, double> end{};
+    for (auto& eu : wire) {
+      UVLoop pts = use_points(f, eu, eu.reversed, sag);
+      if (by_continuity && !loop.empty() && s_.edge_is_seam(eu.edge, f)) {
+        UVLoop other = use_points(f, eu, !eu.reversed, sag);
+        auto gap = [&](const UVLoop& c) { return std::hypot(c.front().first - end.first, c.front().second - end.second); };
+        if (gap(other) < gap(pts)) pts = std::move(other);
+      }
+      end = pts.back();
+      loop.insert(loop.end(), pts.begin(), pts.end() - 1);
+    }
+    return loop;
+  }
+  FacePoly face_poly(int f, bool by_continuity) const {
+    FacePoly fp;
+    auto b = s_.face_uv_bounds(f);
+    double sag = 0;
+    for (auto& wire : s_.face_wires(f)) {
+      UVLoop loop = wire_loop(f, wire, by_continuity, sag);
+      if (loop.size() >= 3) fp.loops.push_back(std::move(loop));
+    }
+    double ext = std::max(b.u1 - b.u0, b.v1 - b.v0);
+    fp.band = std::max(4 * sag, 1e-6 * ext);
+    fp.ok = !fp.loops.empty() && std::isfinite(fp.band);
+    for (auto& l : fp.loops)
+      for (auto& [u, v] : l) fp.ok = fp.ok && std::isfinite(u) && std::isfinite(v);
+    return fp;
+  }
+  // The polygon classifies like OCCT on both sides of its own boundary: points 8 bands (at least
+  // 1e-4 of the uv extent) either side of every 8th chord's middle.
+  bool agrees_with_occt(int f, const FacePoly& fp) const {
+    auto b = s_.face_uv_bounds(f);
+    const double d = std::max(8 * fp.band, 1e-4 * std::max(b.u1 - b.u0, b.v1 - b.v0));
+    for (auto& loop : fp.loops)
+      for (std::size_t i = 0; i < loop.size(); i += 8) {
+        auto [ua, va] = loop[i];
+        auto [ub, vb] = loop[(i + 1) % loop.size()];
+        const double l = std::hypot(ub - ua, vb - va);
+        if (!(l > 0)) continue;
+        for (double side : {-1.0, 1.0}) {
+          double u = 0.5 * (ua + ub) - side * d * (vb - va) / l, v = 0.5 * (va + vb) + side * d * (ub - ua) / l;
+          if (polygon_contains(f, fp, u, v) != s_.face_contains_uv(f, u, v, 1e-9)) return false;
+        }
+      }
+    return true;
+  }
+  bool has_seam(int f) const {
+    for (int e : s_.face_edges(f))
+      if (s_.edge_is_seam(e, f)) return true;
+    return false;
+  }
+  // A face with a seam: the polygon on the p-curves the orientations name unless it classifies
+  // unlike OCCT, then the seam's p-curves chosen by continuity (NekMesh's cylinder after heal's
+  // unify: the names gave the u = 0 p-curve right after the top circle ended at u = 2 pi, a
+  // bow-tie that classified a band beside each junction circle, half way round, as outside: no
+  // face sample within 9e-3 of the circle there, and Delaunay balls across the gap that the shell
+  // took for narrow passages; Rotor 67's blade, whose closed edges run the same way round, needs
+  // the names), else none (OCCT's classifier everywhere).
   void build_poly(int f) {
     FacePoly fp;
     try {
-      auto b = s_.face_uv_bounds(f);
-      double sag = 0;
-      for (auto& wire : s_.face_wires(f)) {
-        std::vector<std::pair<double, double>> loop;
-        for (auto& eu : wire) {
-          auto r = s_.edge_range(eu.edge);
-          const int N = 64;
-          for (int k = 0; k < N; ++k) {
-            double a = eu.reversed ? 1.0 - double(k) / N : double(k) / N;
-            double an = eu.reversed ? 1.0 - double(k + 1) / N : double(k + 1) / N;
-            double t = r.lo + a * (r.hi - r.lo), tn = r.lo + an * (r.hi - r.lo);
-            auto p0 = s_.edge_uv(eu.edge, f, t, eu.reversed), p1 = s_.edge_uv(eu.edge, f, tn, eu.reversed);
-            auto pm = s_.edge_uv(eu.edge, f, 0.5 * (t + tn), eu.reversed);
-            sag = std::max(sag, std::hypot(pm.u - 0.5 * (p0.u + p1.u), pm.v - 0.5 * (p0.v + p1.v)));
-            loop.push_back({p0.u, p0.v});
-          }
-        }
-        if (loop.size() >= 3) fp.loops.push_back(std::move(loop));
+      fp = face_poly(f, false);
+      if (fp.ok && has_seam(f) && !agrees_with_occt(f, fp)) {
+        fp = face_poly(f, true);
+        fp.ok = fp.ok && agrees_with_occt(f, fp);
+        ++(fp.ok ? seam_polygons_by_continuity_ : polygons_refused_);
       }
-      double ext = std::max(b.u1 - b.u0, b.v1 - b.v0);
-      fp.band = std::max(4 * sag, 1e-6 * ext);
-      fp.ok = !fp.loops.empty() && std::isfinite(fp.band);
-      for (auto& l : fp.loops)
-        for (auto& [u, v] : l) fp.ok = fp.ok && std::isfinite(u) && std::isfinite(v);
     } catch (...) {
       fp.ok = false;
     }
     polys_[f] = std::move(fp);
   }
+  long seam_polygons_by_continuity_ = 0, polygons_refused_ = 0;
   bool all_refined_fallback_ = false;
   std::vector<std::vector<int>> vfaces_;
   std::vector<std::vector<std::pair<int, int>>> vedges_;
@@ -294,6 +364,10 @@ void run(StageContext& ctx) {
   CadModel model(shape, refine);
   if (model.all_refined_fallback())
     ctx.log("medial: no face carries one of refine_tags; all faces are refined");
+  const auto [by_continuity, refused] = model.polygon_fixes();
+  if (by_continuity + refused > 0)
+    ctx.log("medial: " + std::to_string(by_continuity) + " face(s) with a seam classified with its p-curves chosen by continuity, " +
+            std::to_string(refused) + " by OCCT's classifier alone (their uv polygon as the wire names it disagreed with OCCT)");
   Params prm = Params::from_json(P);
   RunReport rep;
   MedialObject M = compute(model, prm, &rep, [&](double f, const std::string& w) { ctx.progress(f, w); });
@@ -322,6 +396,8 @@ void run(StageContext& ctx) {
   st["radius_body"] = sum["radius_body"];
   st["lfs_walls"] = sum["lfs_walls"];
   st["projections"] = projected;
+  if (by_continuity + refused > 0)  // only when it acts: other medial stats keep their bytes
+    st["uv_polygons"] = {{"seam_by_continuity", by_continuity}, {"occt_only", refused}};
   st["time"] = {{"sampling", rep.t_sampling}, {"delaunay", rep.t_delaunay}, {"poles", rep.t_poles},
                 {"lfs", rep.t_lfs},           {"projection", t2 - t1},      {"total", now() - t0}};
   ctx.progress(1.0, "done");
