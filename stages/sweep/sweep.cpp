@@ -811,6 +811,24 @@ std::uint32_t Builder::shell_image(std::uint32_t n, int face) {
 }
 
 // ── one face: boundary loops in (u,v), the 2D mesher, nodes and triangles ────────────────
+// The sign of (dS/du x dS/dv) . outward normal on face f (+1 or -1), where |dS/du x dS/dv| is
+// largest on a 5 x 5 grid of its parameter box (a pole, where it vanishes, decides nothing);
+// Reparam keeps it (both its coordinates increase with their parameters).
+int parameter_orientation(const cad::Shape& S, int f) {
+  auto b = S.face_uv_bounds(f);
+  double best = 0;
+  int sign = 0;
+  for (int i = 0; i < 5; ++i)
+    for (int j = 0; j < 5; ++j) {
+      double u = b.u0 + (b.u1 - b.u0) * (i + 0.5) / 5, v = b.v0 + (b.v1 - b.v0) * (j + 0.5) / 5;
+      auto d = S.face_eval(f, u, v);
+      V3 n = cross(v3(d.du), v3(d.dv));
+      double s = dot(n, v3(S.face_normal(f, u, v)));
+      if (std::abs(s) > best) best = std::abs(s), sign = s > 0 ? 1 : -1;
+    }
+  return sign;
+}
+
 void Builder::mesh_face(int f, int copy_from) {
   struct LP {
     std::uint32_t node;
@@ -852,6 +870,7 @@ void Builder::mesh_face(int f, int copy_from) {
     auto pr = std::isnan(hint[0]) ? S.project_to_face(f, cv(X(n))) : S.project_to_face(f, cv(X(n)), cad::Vec2{hint[0], hint[1]});
     return {pr.u, pr.v};
   };
+  const auto per_f = S.face_periods(f);
   // One wire's loop in the (unwrapped) parameter plane; flip[i]: run use i against the wire's
   // orientation (see the closure check below).
   auto build_wire = [&](const std::vector<cad::EdgeUse>& wire, const std::vector<char>& flip) {
@@ -908,7 +927,10 @@ void Builder::mesh_face(int f, int copy_from) {
           break;
         }
         std::size_t k = (i + 2) % raw.size();
-        if (raw[i].node == raw[k].node && i != k) {
+        // (not a seam's node on either side of the face: a period apart)
+        bool apart = cad::Shape::period_jump(raw[i].uv[0], raw[k].uv[0], per_f[0]) ||
+                     cad::Shape::period_jump(raw[i].uv[1], raw[k].uv[1], per_f[1]);
+        if (raw[i].node == raw[k].node && i != k && !apart) {
           // drop the detour i -> j -> k == i
           std::size_t first = std::max(j, k), second = std::min(j, k);
           raw.erase(raw.begin() + static_cast<long>(first));
@@ -948,7 +970,6 @@ void Builder::mesh_face(int f, int copy_from) {
   // full-period edge use (or its junction/slide curve) run the other way, which makes it the
   // boundary of the face's band [0, period] x [v0, v1]; the 3D face is the same either way (an
   // orientation defect of the wire, not of the geometry).
-  auto per_f = S.face_periods(f);
   auto closes = [&](const std::vector<LP>& raw) {
     if (raw.size() < 3 || raw.back().pole) return true;
     for (int k = 0; k < 2; ++k)
@@ -980,7 +1001,10 @@ void Builder::mesh_face(int f, int copy_from) {
     }
     if (raw.size() >= 3) loops.push_back(std::move(raw));
   }
-  if (loops.empty()) return;
+  if (loops.empty())
+    throw StageError("sweep: face " + std::to_string(f) + " (" + cad::tag_name(S.face_tag(f)) + ", " + S.face_surface_type(f) +
+                     "): no boundary loop of three points or more is left in its parameter plane (" +
+                     std::to_string(S.face_wires(f).size()) + " wire(s)); the face cannot be meshed: heal it (its wires)");
   // inner loops a period away from the outer one (each loop was unwrapped on its own)
   {
     auto per = S.face_periods(f);
@@ -1101,6 +1125,7 @@ void Builder::mesh_face(int f, int copy_from) {
     auto q = RP.inv(U, V);
     return v3(S.face_normal(f, q[0], q[1]));
   };
+  in.orientation = parameter_orientation(S, f);
   in.max_turn = theta;
   in.min_length = O.min_size;
   in.refine_ratio = O.refine_ratio;
@@ -1121,6 +1146,11 @@ void Builder::mesh_face(int f, int copy_from) {
   if (std::getenv("MESHFLOW_SWEEP_DEBUG"))
     log("face " + std::to_string(f) + ": " + std::to_string(out.uv.size()) + " points, " + std::to_string(out.tris.size()) +
         " triangles, " + std::to_string(out.passes) + " passes, min quality " + std::to_string(out.min_quality));
+  if (out.folded > 0)
+    throw StageError("sweep: face " + std::to_string(f) + " (" + cad::tag_name(S.face_tag(f)) + ", " + S.face_surface_type(f) +
+                     "): " + std::to_string(out.folded) +
+                     " triangle(s) of its parameter-plane mesh fold over in 3D (their normal opposes the surface's) after "
+                     "refinement; the parameterisation is singular there (a pole): lower the wall sizes or heal the face");
   std::vector<std::uint32_t> node(out.uv.size(), kNone);
   for (std::size_t i = 0; i < bnode.size(); ++i) node[i] = bnode[i];
   for (std::size_t i = bnode.size(); i < out.uv.size(); ++i) {
@@ -1164,6 +1194,10 @@ void Builder::mesh_face(int f, int copy_from) {
       log("sweep: face " + std::to_string(f) + ": " + std::to_string((before - face_tris[f].size()) / 2) +
           " folded triangle pair(s) at a pole removed");
   }
+  if (face_tris[f].empty())
+    throw StageError("sweep: face " + std::to_string(f) + " (" + cad::tag_name(S.face_tag(f)) + ", " + S.face_surface_type(f) +
+                     "): its parameter-plane mesh of " + std::to_string(out.tris.size()) +
+                     " triangle(s) leaves none after mapping to 3D (all collapsed at poles); the face cannot be meshed");
   ++R.faces_meshed;
 }
 

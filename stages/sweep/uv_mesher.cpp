@@ -87,6 +87,27 @@ double orient(const std::array<double, 2>& a, const std::array<double, 2>& b, co
   return (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
 }
 
+// Per boundary point: its pole (the ends of segments of zero 3D length, joined), or -1.
+std::vector<int> pole_groups(const UVMeshInput& in, const std::vector<std::array<double, 3>>& p3) {
+  std::vector<int> g(in.uv.size(), -1);
+  double scale = 0;
+  for (auto& s : in.segments) scale = std::max(scale, dist3(p3[s[0]], p3[s[1]]));
+  auto root = [&](int a) {
+    while (g[a] >= 0 && g[a] != a) a = g[a];
+    return a;
+  };
+  for (auto& s : in.segments) {
+    if (s[0] == s[1] || !(dist3(p3[s[0]], p3[s[1]]) <= 1e-12 * scale)) continue;
+    for (int v : {s[0], s[1]})
+      if (g[v] < 0) g[v] = v;
+    int a = root(s[0]), b = root(s[1]);
+    if (a != b) g[std::max(a, b)] = std::min(a, b);
+  }
+  for (std::size_t v = 0; v < g.size(); ++v)
+    if (g[v] >= 0) g[v] = root(static_cast<int>(v));
+  return g;
+}
+
 }  // namespace
 
 UVMeshOutput mesh_uv(const UVMeshInput& in) {
@@ -103,6 +124,28 @@ UVMeshOutput mesh_uv(const UVMeshInput& in) {
     double nx = std::sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]), ny = std::sqrt(y[0] * y[0] + y[1] * y[1] + y[2] * y[2]);
     if (!(nx > 0) || !(ny > 0)) return 0.0;  // undefined at a pole
     return std::acos(std::clamp((x[0] * y[0] + x[1] * y[1] + x[2] * y[2]) / (nx * ny), -1.0, 1.0));
+  };
+
+  // Poles: boundary points at one 3D point (the two ends of a degenerate edge's segment: a
+  // sphere's pole, a cone's apex). A triangle with two of them is the pole segment's own
+  // triangle, a point in 3D: it is not refined for its shape (its quality is 0 whatever is
+  // inserted: on the corpus sphere 3,000 points piled up at the poles in 30 passes, triangles
+  // of zero area folded over one another, 17% too much area) and mesh_face drops it.
+  const std::vector<int> pole = pole_groups(in, p3);
+  auto pg = [&](int v) { return v < static_cast<int>(pole.size()) ? pole[v] : -1; };
+  auto collapsed = [&](int a, int b, int c) {
+    return (pg(a) >= 0 && (pg(a) == pg(b) || pg(a) == pg(c))) || (pg(b) >= 0 && pg(b) == pg(c));
+  };
+  // Folded: the 3D triangle's normal opposes the surface's (the mean of its vertex normals)
+  auto folded = [&](int a, int b, int c) {
+    if (in.orientation == 0 || n3.empty() || collapsed(a, b, c)) return false;
+    double e1[3], e2[3], nn[3] = {0, 0, 0};
+    for (int k = 0; k < 3; ++k) e1[k] = p3[b][k] - p3[a][k], e2[k] = p3[c][k] - p3[a][k];
+    for (int v : {a, b, c})
+      if (v < static_cast<int>(n3.size()))
+        for (int k = 0; k < 3; ++k) nn[k] += n3[v][k];
+    double cx = e1[1] * e2[2] - e1[2] * e2[1], cy = e1[2] * e2[0] - e1[0] * e2[2], cz = e1[0] * e2[1] - e1[1] * e2[0];
+    return in.orientation * (cx * nn[0] + cy * nn[1] + cz * nn[2]) < 0;
   };
 
   CDT cdt;
@@ -188,13 +231,17 @@ UVMeshOutput mesh_uv(const UVMeshInput& in) {
           !cdt.is_constrained(CDT::Edge(f, 1)) && !cdt.is_constrained(CDT::Edge(f, 2)) &&
           std::max({turn(a, b), turn(b, c), turn(c, a)}) > in.max_turn)
         big = true;
-      bool skinny = !big && q < in.min_quality && L > 0.5 * h;
+      const bool pole_tri = collapsed(a, b, c), fold = folded(a, b, c);
+      if (fold) big = true;
+      bool skinny = !big && !pole_tri && q < in.min_quality && L > 0.5 * h;
       if (!big && !skinny) continue;
       // the circumcentre when it is inside the domain and clear of the constraints, else the centroid
       Point cc = CGAL::circumcenter(f->vertex(0)->point(), f->vertex(1)->point(), f->vertex(2)->point());
       Point p = g;
       auto lf = cdt.locate(cc, f);
-      if (!cdt.is_infinite(lf) && lf->info().in_domain()) {
+      if (fold) {
+        // (the centroid: it splits the fan's wide corner)
+      } else if (!cdt.is_infinite(lf) && lf->info().in_domain()) {
         bool clear = !encroaches(in.point(cc.x(), cc.y()), lf);
         for (int i = 0; i < 3 && clear; ++i) {
           if (!cdt.is_constrained(CDT::Edge(lf, i))) continue;
@@ -295,9 +342,14 @@ UVMeshOutput mesh_uv(const UVMeshInput& in) {
   std::vector<std::vector<int>> vt(np), nbr(np);  // triangles and neighbours of each point
   // 3D shape quality of a triangle: 4 sqrt(3) area / sum of squared edges (1 equilateral)
   p3.resize(np);
+  // (a pole's own triangle, a point in 3D, counts as perfect: nothing improves it; a folded one as 0)
+  auto tq = [&](int a, int b, int c) {
+    if (collapsed(a, b, c)) return 1.0;
+    return folded(a, b, c) ? 0.0 : tri_quality(p3[a], p3[b], p3[c]);
+  };
   auto q3 = [&](int t) {
     auto& tr = out.tris[t];
-    return tri_quality(p3[tr[0]], p3[tr[1]], p3[tr[2]]);
+    return tq(tr[0], tr[1], tr[2]);
   };
     // 3D edge swaps: an edge shared by two triangles is flipped when the flip is valid in (u,v)
   // and raises the worse 3D quality of the pair (Delaunay in the parameter plane is not
@@ -334,8 +386,8 @@ UVMeshOutput mesh_uv(const UVMeshInput& in) {
         std::array<int, 3> N0{a, d, c}, N1{d, b, c};
         if (!(orient(out.uv[N0[0]], out.uv[N0[1]], out.uv[N0[2]]) > 0) || !(orient(out.uv[N1[0]], out.uv[N1[1]], out.uv[N1[2]]) > 0))
           continue;
-        double before = std::min(tri_quality(p3[T0[0]], p3[T0[1]], p3[T0[2]]), tri_quality(p3[T1[0]], p3[T1[1]], p3[T1[2]]));
-        double after = std::min(tri_quality(p3[N0[0]], p3[N0[1]], p3[N0[2]]), tri_quality(p3[N1[0]], p3[N1[1]], p3[N1[2]]));
+        double before = std::min(tq(T0[0], T0[1], T0[2]), tq(T1[0], T1[1], T1[2]));
+        double after = std::min(tq(N0[0], N0[1], N0[2]), tq(N1[0], N1[1], N1[2]));
         if (after > before * 1.01 + 1e-12) {
           T0 = N0, T1 = N1;
           done[ts[0]] = done[ts[1]] = 1;
@@ -375,6 +427,8 @@ UVMeshOutput mesh_uv(const UVMeshInput& in) {
       auto oldp = p3[i];
       out.uv[i] = m;
       p3[i] = in.point(m[0], m[1]);
+      auto oldn = n3.empty() ? std::array<double, 3>{} : n3[i];
+      if (!n3.empty()) n3[i] = in.normal(m[0], m[1]);
       bool ok = true;
       double after = 1;
       for (int t : vt[i]) {
@@ -382,7 +436,10 @@ UVMeshOutput mesh_uv(const UVMeshInput& in) {
         if (!(orient(out.uv[tr[0]], out.uv[tr[1]], out.uv[tr[2]]) > 0)) { ok = false; break; }
         after = std::min(after, q3(t));
       }
-      if (!ok || after < before) out.uv[i] = old, p3[i] = oldp;
+      if (!ok || after < before) {
+        out.uv[i] = old, p3[i] = oldp;
+        if (!n3.empty()) n3[i] = oldn;
+      }
     }
   swaps();
   // ── no two boundary segments of one triangle meeting at a smooth boundary point ──
@@ -466,7 +523,10 @@ UVMeshOutput mesh_uv(const UVMeshInput& in) {
   }
   std::sort(out.tris.begin(), out.tris.end());
   out.min_quality = 1;
-  for (int t = 0; t < static_cast<int>(out.tris.size()); ++t) out.min_quality = std::min(out.min_quality, q3(t));
+  for (int t = 0; t < static_cast<int>(out.tris.size()); ++t) {
+    out.min_quality = std::min(out.min_quality, q3(t));
+    if (folded(out.tris[t][0], out.tris[t][1], out.tris[t][2])) ++out.folded;
+  }
   return out;
 }
 

@@ -33,6 +33,11 @@ struct UVMeshInput {
   // (radians) is refined while its longest edge exceeds min_length
   std::function<std::array<double, 3>(double, double)> normal;
   double max_turn = 0, min_length = 0;
+  // optional: +1 or -1, the sign of (dS/dU x dS/dV) . normal on this face (0: unknown). With it,
+  // a triangle whose 3D normal opposes the surface's (folded: round a pole, where the parameter
+  // plane's triangles fan over more than half a turn) is refined, and no swap or smoothing move
+  // makes one.
+  int orientation = 0;
   double refine_ratio = 1.3;
   double min_quality = 0.4;  // 3D shape quality 4 sqrt(3) area / sum l^2 below which a triangle gets its circumcentre
   int max_passes = 60;
@@ -46,7 +51,8 @@ struct UVMeshOutput {
   int passes = 0;
   int smooth_corner_splits = 0;  // triangles split because two boundary segments met at a smooth point
   int smooth_corner_flips = 0;   // such flat triangles whose third edge was flipped instead
-  double min_quality = 1;  // of the result
+  double min_quality = 1;  // of the result (a pole's own triangles, points in 3D, left out)
+  int folded = 0;          // triangles whose 3D normal opposes the surface's (with in.orientation)
 };
 
 // Throws std::runtime_error (crossing constraints, a point budget exceeded) with the reason.
