@@ -501,6 +501,59 @@ SurfaceProjection Shape::project_to_face(int f, const Vec3& p, std::optional<Vec
   return r;
 }
 
+namespace {
+
+// One edge use of a wire with its p-curve's ends on the face, in the direction of use.
+struct WireUse {
+  TopoDS_Edge edge;  // oriented as in the wire
+  gp_Pnt2d start, end;
+};
+
+std::vector<WireUse> wire_occurrences(const TopoDS_Wire& w, const TopoDS_Face& fa) {
+  std::vector<WireUse> r;
+  for (TopoDS_Iterator it(w); it.More(); it.Next()) {
+    TopoDS_Edge e = TopoDS::Edge(it.Value());
+    double a = 0, b = 0;
+    Handle(Geom2d_Curve) pc = BRep_Tool::CurveOnSurface(e, fa, a, b);
+    WireUse u{e, {}, {}};
+    if (!pc.IsNull()) u.start = pc->Value(a), u.end = pc->Value(b);
+    if (e.Orientation() == TopAbs_REVERSED) std::swap(u.start, u.end);
+    r.push_back(u);
+  }
+  return r;
+}
+
+// The occurrences chained end to start in the parameter plane: from the first, each next use
+// is the unused one whose p-curve starts nearest the current one's end (the first such in the
+// wire's own order on ties).
+std::vector<WireUse> chain_in_uv(std::vector<WireUse> occ) {
+  std::vector<WireUse> r;
+  if (occ.empty()) return r;
+  std::vector<char> used(occ.size(), 0);
+  std::size_t cur = 0;
+  for (std::size_t n = 0; n < occ.size(); ++n) {
+    used[cur] = 1;
+    r.push_back(occ[cur]);
+    std::size_t best = occ.size();
+    double bd = INFINITY;
+    for (std::size_t k = 0; k < occ.size(); ++k)
+      if (!used[k] && occ[k].start.Distance(occ[cur].end) < bd) bd = occ[k].start.Distance(occ[cur].end), best = k;
+    if (best == occ.size()) break;
+    cur = best;
+  }
+  return r;
+}
+
+}  // namespace
+
+// BRepTools_WireExplorer follows the wire through its vertices. Where one vertex is shared by
+// more than two uses (a torus face: two seams, each used twice, all four ends at one vertex) or
+// a degenerate edge closes the loop (a sphere's north pole), it returns an edge twice in the
+// same orientation or a pole edge in the wrong one (corpus torus: e0 e1 e0 e1 for the wire
+// e0 e1r e0r e1; sphere: the north pole's degenerate edge forward for reversed), and the loop
+// no longer closes in the parameter plane. The explorer's order is kept when it uses every
+// occurrence of the wire once with its orientation; otherwise the occurrences are chained by
+// their p-curves' ends in the parameter plane.
 std::vector<std::vector<EdgeUse>> Shape::face_wires(int f) const {
   TopoDS_Face fa = TopoDS::Face(impl_->face(f).Oriented(TopAbs_FORWARD));
   TopoDS_Wire outer = BRepTools::OuterWire(fa);
@@ -509,10 +562,19 @@ std::vector<std::vector<EdgeUse>> Shape::face_wires(int f) const {
   for (TopoDS_Iterator it(fa); it.More(); it.Next())
     if (it.Value().ShapeType() == TopAbs_WIRE && !it.Value().IsSame(outer)) wires.push_back(TopoDS::Wire(it.Value()));
   std::vector<std::vector<EdgeUse>> r;
+  auto index = [&](const TopoDS_Edge& e) { return impl_->edges.FindIndex(e) - 1; };
   for (const auto& w : wires) {
     std::vector<EdgeUse> uses;
     for (BRepTools_WireExplorer ex(w, fa); ex.More(); ex.Next())
-      uses.push_back({impl_->edges.FindIndex(ex.Current()) - 1, ex.Orientation() == TopAbs_REVERSED});
+      uses.push_back({index(ex.Current()), ex.Orientation() == TopAbs_REVERSED});
+    std::vector<WireUse> occ = wire_occurrences(w, fa);
+    std::multiset<std::pair<int, bool>> want, got;
+    for (auto& o : occ) want.insert({index(o.edge), o.edge.Orientation() == TopAbs_REVERSED});
+    for (auto& u : uses) got.insert({u.edge, u.reversed});
+    if (got != want) {
+      uses.clear();
+      for (auto& o : chain_in_uv(occ)) uses.push_back({index(o.edge), o.edge.Orientation() == TopAbs_REVERSED});
+    }
     r.push_back(std::move(uses));
   }
   return r;

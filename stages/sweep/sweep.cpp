@@ -274,7 +274,36 @@ class Builder {
   void build_slides();
   void slide_ends();
   std::map<std::pair<int, int>, std::uint32_t> slide_end_image;  // (vertex, other face) -> image node on an edge
+  // the face mesher (mesh_face and its steps)
+  struct LoopPoint {
+    std::uint32_t node;
+    std::array<double, 2> uv;
+    bool pole = false;  // the start of a degenerate edge: the segment to the next point is the pole
+    int edge = -1;      // the CAD edge whose segment starts here (-1: a pole or a substituted curve)
+    bool reversed = false;
+    bool first = false;  // the edge's first point in loop direction (a CAD vertex)
+  };
+  using Loop = std::vector<LoopPoint>;
+  struct FaceBoundary {  // the boundary points of a face's parameter-plane mesh
+    std::vector<std::uint32_t> node;
+    std::vector<V3> x;
+    std::vector<double> h;  // spacing: the mean length of the two segments at the point
+  };
   void mesh_face(int f, int copy_from = -1);
+  std::array<double, 2> uv_on_face(int f, std::uint32_t n, std::array<double, 2> hint) const;
+  Loop wire_points(int f, const std::vector<cad::EdgeUse>& wire, const std::vector<char>& flip);
+  static void drop_detours(Loop& raw, std::array<double, 2> per);
+  static void unwrap_loop(Loop& raw, std::array<double, 2> per);
+  Loop build_wire(int f, const std::vector<cad::EdgeUse>& wire, const std::vector<char>& flip);
+  static bool loop_closes(const Loop& raw, std::array<double, 2> per);
+  Loop closed_wire(int f, const std::vector<cad::EdgeUse>& wire);
+  void align_loops(int f, std::vector<Loop>& loops) const;
+  std::vector<Loop> face_loops(int f);
+  std::vector<char> smooth_points(const std::vector<Loop>& loops) const;
+  detail::UVMeshInput uv_input(int f, const std::vector<Loop>& loops, const Reparam& RP, FaceBoundary& fb);
+  detail::UVMeshOutput mesh_parameter_plane(int f, const detail::UVMeshInput& in);
+  void face_triangles(int f, const detail::UVMeshOutput& out, const Reparam& RP, const std::vector<std::uint32_t>& bnode);
+  void drop_pole_folds(int f);
   // periodic: hi face `hi` as the image of the meshed lo face `lo` (hb: hi's boundary loop nodes)
   std::vector<std::vector<std::uint32_t>> face_bnodes;  // per face: its boundary loop nodes (distinct, loop order)
   std::map<std::uint32_t, std::uint32_t> per_master;   // hi node -> lo node
@@ -811,224 +840,254 @@ std::uint32_t Builder::shell_image(std::uint32_t n, int face) {
 }
 
 // ── one face: boundary loops in (u,v), the 2D mesher, nodes and triangles ────────────────
-void Builder::mesh_face(int f, int copy_from) {
-  struct LP {
-    std::uint32_t node;
-    std::array<double, 2> uv;
-    bool pole = false;  // the start of a degenerate edge: the segment to the next point is the pole
-    int edge = -1;      // the CAD edge whose segment starts here (-1: a pole or a substituted curve)
-    bool reversed = false;
-    bool first = false;  // the edge's first point in loop direction (a CAD vertex)
+// The sign of (dS/du x dS/dv) . outward normal on face f (+1 or -1), where |dS/du x dS/dv| is
+// largest on a 5 x 5 grid of its parameter box (a pole, where it vanishes, decides nothing);
+// Reparam keeps it (both its coordinates increase with their parameters).
+int parameter_orientation(const cad::Shape& S, int f) {
+  auto b = S.face_uv_bounds(f);
+  double best = 0;
+  int sign = 0;
+  for (int i = 0; i < 5; ++i)
+    for (int j = 0; j < 5; ++j) {
+      double u = b.u0 + (b.u1 - b.u0) * (i + 0.5) / 5, v = b.v0 + (b.v1 - b.v0) * (j + 0.5) / 5;
+      auto d = S.face_eval(f, u, v);
+      V3 n = cross(v3(d.du), v3(d.dv));
+      double s = dot(n, v3(S.face_normal(f, u, v)));
+      if (std::abs(s) > best) best = std::abs(s), sign = s > 0 ? 1 : -1;
+    }
+  return sign;
+}
+
+// (u,v) on f of a node classified elsewhere: through the p-curves of f's edges (a seam's two
+// p-curves: the one nearer the hint), projection only for nodes off f's edges
+std::array<double, 2> Builder::uv_on_face(int f, std::uint32_t n, std::array<double, 2> hint) const {
+  int dim = m.node_entity_dim[n], tag = m.node_entity_tag[n];
+  if (dim == 2 && tag == f + 1) return {m.node_u[n], m.node_v[n]};
+  auto pick = [&](int e, double t) -> std::optional<std::array<double, 2>> {
+    auto fs = S.edge_faces(e);
+    if (std::find(fs.begin(), fs.end(), f) == fs.end()) return std::nullopt;
+    cad::Vec2 a = S.edge_uv(e, f, t, false);
+    std::array<double, 2> r{a.u, a.v};
+    if (S.edge_is_seam(e, f) && !std::isnan(hint[0])) {
+      cad::Vec2 b = S.edge_uv(e, f, t, true);
+      if (std::hypot(b.u - hint[0], b.v - hint[1]) < std::hypot(a.u - hint[0], a.v - hint[1])) r = {b.u, b.v};
+    }
+    return r;
   };
-  std::vector<std::vector<LP>> loops;
-  // (u,v) on f of a node classified elsewhere: through the p-curves of f's edges (a seam's two
-  // p-curves: the one nearer the hint), projection only for nodes off f's edges
-  auto uv_of = [&](std::uint32_t n, std::array<double, 2> hint) -> std::array<double, 2> {
-    int dim = m.node_entity_dim[n], tag = m.node_entity_tag[n];
-    if (dim == 2 && tag == f + 1) return {m.node_u[n], m.node_v[n]};
-    auto pick = [&](int e, double t) -> std::optional<std::array<double, 2>> {
-      auto fs = S.edge_faces(e);
-      if (std::find(fs.begin(), fs.end(), f) == fs.end()) return std::nullopt;
-      cad::Vec2 a = S.edge_uv(e, f, t, false);
-      std::array<double, 2> r{a.u, a.v};
-      if (S.edge_is_seam(e, f) && !std::isnan(hint[0])) {
-        cad::Vec2 b = S.edge_uv(e, f, t, true);
-        if (std::hypot(b.u - hint[0], b.v - hint[1]) < std::hypot(a.u - hint[0], a.v - hint[1])) r = {b.u, b.v};
+  if (dim == 1)
+    if (auto r = pick(tag - 1, m.node_u[n])) return *r;
+  if (dim == 0)
+    for (int e : S.face_edges(f)) {
+      if (S.edge_degenerate(e)) continue;
+      auto vs = S.edge_vertices(e);
+      auto rr = S.edge_range(e);
+      if (vs[0] == tag - 1)
+        if (auto r = pick(e, rr.lo)) return *r;
+      if (vs[1] == tag - 1)
+        if (auto r = pick(e, rr.hi)) return *r;
+    }
+  auto pr = std::isnan(hint[0]) ? S.project_to_face(f, cv(X(n))) : S.project_to_face(f, cv(X(n)), cad::Vec2{hint[0], hint[1]});
+  return {pr.u, pr.v};
+}
+
+// One wire's points in the parameter plane, as its edge uses give them (flip[i]: use i run
+// against the wire's orientation; see closed_wire).
+Builder::Loop Builder::wire_points(int f, const std::vector<cad::EdgeUse>& wire, const std::vector<char>& flip) {
+  Loop raw;
+  for (std::size_t iu = 0; iu < wire.size(); ++iu) {
+    cad::EdgeUse eu = wire[iu];
+    if (flip[iu]) eu.reversed = !eu.reversed;
+    int e = eu.edge;
+    if (S.edge_degenerate(e)) {
+      auto r = S.edge_range(e);
+      int V = S.edge_vertices(e)[0];
+      cad::Vec2 q = S.edge_uv(e, f, eu.reversed ? r.hi : r.lo, eu.reversed);
+      if (vnode[V] == kNone) vnode[V] = mk(v3(S.vertex_point(V)), 0, V + 1);
+      raw.push_back({vnode[V], {q.u, q.v}, true});
+      continue;
+    }
+    int jb = junction_of[e];
+    std::vector<std::uint32_t> sub;  // substituted curve (both ends included), in the edge's direction
+    if (jb >= 0 && J[jb].A == f) sub = J[jb].pa;
+    if (jb >= 0 && J[jb].B == f) sub = J[jb].pb;
+    if (jb < 0 && slide_other[e] == f) {
+      for (auto n : en[e]) sub.push_back(image.at(n));
+    }
+    if (!sub.empty()) {
+      if (eu.reversed) std::reverse(sub.begin(), sub.end());
+      std::array<double, 2> hint{NAN, NAN};
+      for (auto n : sub) {
+        if (!raw.empty() && std::isnan(hint[0])) hint = raw.back().uv;
+        auto q = uv_on_face(f, n, hint);
+        raw.push_back({n, q});
+        hint = q;
       }
-      return r;
-    };
-    if (dim == 1)
-      if (auto r = pick(tag - 1, m.node_u[n])) return *r;
-    if (dim == 0)
-      for (int e : S.face_edges(f)) {
-        if (S.edge_degenerate(e)) continue;
-        auto vs = S.edge_vertices(e);
-        auto rr = S.edge_range(e);
-        if (vs[0] == tag - 1)
-          if (auto r = pick(e, rr.lo)) return *r;
-        if (vs[1] == tag - 1)
-          if (auto r = pick(e, rr.hi)) return *r;
+      continue;
+    }
+    const auto& t = et[e];
+    const auto& nn = en[e];
+    std::size_t n = t.size();
+    for (std::size_t s = 0; s + 1 < n; ++s) {
+      std::size_t k = eu.reversed ? n - 1 - s : s;
+      cad::Vec2 q = S.edge_uv(e, f, t[k], eu.reversed);
+      raw.push_back({nn[k], {q.u, q.v}, false, e, eu.reversed, s == 0});
+    }
+  }
+  return raw;
+}
+
+// Clean-up: consecutive duplicates and X,V,X detours (a junction vertex between a strip curve
+// and the cut edge that continues from the strip's corner). A seam's node met on both sides of
+// the face, a period apart, is no detour: taken for one, the sphere's seam (its node before the
+// pole, the pole, the same node again on the far side) was zipped away from the pole down, the
+// whole loop (34 points) down to 1, and the face got no triangle.
+void Builder::drop_detours(Loop& raw, std::array<double, 2> per) {
+  bool changed = true;
+  while (changed && raw.size() > 2) {
+    changed = false;
+    for (std::size_t i = 0; i < raw.size() && raw.size() > 2; ++i) {
+      std::size_t j = (i + 1) % raw.size();
+      if (raw[i].node == raw[j].node && std::abs(raw[i].uv[0] - raw[j].uv[0]) + std::abs(raw[i].uv[1] - raw[j].uv[1]) < 1e-9 * (1 + std::abs(raw[i].uv[0]) + std::abs(raw[i].uv[1]))) {
+        raw.erase(raw.begin() + static_cast<long>(j));
+        changed = true;
+        break;
       }
-    auto pr = std::isnan(hint[0]) ? S.project_to_face(f, cv(X(n))) : S.project_to_face(f, cv(X(n)), cad::Vec2{hint[0], hint[1]});
-    return {pr.u, pr.v};
-  };
-  // One wire's loop in the (unwrapped) parameter plane; flip[i]: run use i against the wire's
-  // orientation (see the closure check below).
-  auto build_wire = [&](const std::vector<cad::EdgeUse>& wire, const std::vector<char>& flip) {
-    std::vector<LP> raw;
-    for (std::size_t iu = 0; iu < wire.size(); ++iu) {
-      cad::EdgeUse eu = wire[iu];
-      if (flip[iu]) eu.reversed = !eu.reversed;
-      int e = eu.edge;
-      if (S.edge_degenerate(e)) {
-        auto r = S.edge_range(e);
-        int V = S.edge_vertices(e)[0];
-        cad::Vec2 q = S.edge_uv(e, f, eu.reversed ? r.hi : r.lo, eu.reversed);
-        if (vnode[V] == kNone) vnode[V] = mk(v3(S.vertex_point(V)), 0, V + 1);
-        raw.push_back({vnode[V], {q.u, q.v}, true});
-        continue;
-      }
-      int jb = junction_of[e];
-      std::vector<std::uint32_t> sub;  // substituted curve (both ends included), in the edge's direction
-      if (jb >= 0 && J[jb].A == f) sub = J[jb].pa;
-      if (jb >= 0 && J[jb].B == f) sub = J[jb].pb;
-      if (jb < 0 && slide_other[e] == f) {
-        for (auto n : en[e]) sub.push_back(image.at(n));
-      }
-      if (!sub.empty()) {
-        if (eu.reversed) std::reverse(sub.begin(), sub.end());
-        std::array<double, 2> hint{NAN, NAN};
-        for (auto n : sub) {
-          if (!raw.empty() && std::isnan(hint[0])) hint = raw.back().uv;
-          auto q = uv_of(n, hint);
-          raw.push_back({n, q});
-          hint = q;
-        }
-        continue;
-      }
-      const auto& t = et[e];
-      const auto& nn = en[e];
-      std::size_t n = t.size();
-      for (std::size_t s = 0; s + 1 < n; ++s) {
-        std::size_t k = eu.reversed ? n - 1 - s : s;
-        cad::Vec2 q = S.edge_uv(e, f, t[k], eu.reversed);
-        raw.push_back({nn[k], {q.u, q.v}, false, e, eu.reversed, s == 0});
+      std::size_t k = (i + 2) % raw.size();
+      // (not a seam's node on either side of the face: a period apart)
+      bool apart = cad::Shape::period_jump(raw[i].uv[0], raw[k].uv[0], per[0]) ||
+                   cad::Shape::period_jump(raw[i].uv[1], raw[k].uv[1], per[1]);
+      if (raw[i].node == raw[k].node && i != k && !apart) {
+        // drop the detour i -> j -> k == i
+        std::size_t first = std::max(j, k), second = std::min(j, k);
+        raw.erase(raw.begin() + static_cast<long>(first));
+        raw.erase(raw.begin() + static_cast<long>(second));
+        changed = true;
+        break;
       }
     }
-    // clean-up: consecutive duplicates and X,V,X detours (a junction vertex between a strip
-    // curve and the cut edge that continues from the strip's corner)
-    bool changed = true;
-    while (changed && raw.size() > 2) {
-      changed = false;
-      for (std::size_t i = 0; i < raw.size() && raw.size() > 2; ++i) {
-        std::size_t j = (i + 1) % raw.size();
-        if (raw[i].node == raw[j].node && std::abs(raw[i].uv[0] - raw[j].uv[0]) + std::abs(raw[i].uv[1] - raw[j].uv[1]) < 1e-9 * (1 + std::abs(raw[i].uv[0]) + std::abs(raw[i].uv[1]))) {
-          raw.erase(raw.begin() + static_cast<long>(j));
-          changed = true;
-          break;
-        }
-        std::size_t k = (i + 2) % raw.size();
-        if (raw[i].node == raw[k].node && i != k) {
-          // drop the detour i -> j -> k == i
-          std::size_t first = std::max(j, k), second = std::min(j, k);
-          raw.erase(raw.begin() + static_cast<long>(first));
-          raw.erase(raw.begin() + static_cast<long>(second));
-          changed = true;
-          break;
-        }
-      }
+  }
+}
+
+// Periodic surfaces: every point unwrapped to the period nearest the previous one of its loop,
+// and the loop's last point dropped where it is its first again.
+void Builder::unwrap_loop(Loop& raw, std::array<double, 2> per) {
+  // periodic surfaces: a projected point may come back a period away from its neighbours
+  // (OCCT returns u in [0, 2 pi) on a revolved hub whose sector straddles u = 0): unwrap
+  // every point to the period nearest the previous point of its loop
+  for (int k = 0; k < 2; ++k) {
+    if (!(per[k] > 0)) continue;
+    for (std::size_t i = 1; i < raw.size(); ++i) {
+      if (raw[i - 1].pole) continue;  // a pole's p-curve may legitimately span half a period or more
+      // only jumps beyond 3/4 of a period: a one-division edge may span half a period (the
+      // semicircular trailing-edge arc of a revolved tip)
+      raw[i].uv[k] = cad::Shape::unwrap_towards(raw[i].uv[k], raw[i - 1].uv[k], per[k]);
     }
-    // periodic surfaces: a projected point may come back a period away from its neighbours
-    // (OCCT returns u in [0, 2 pi) on a revolved hub whose sector straddles u = 0): unwrap
-    // every point to the period nearest the previous point of its loop
-    auto per = S.face_periods(f);
-    for (int k = 0; k < 2; ++k) {
-      if (!(per[k] > 0)) continue;
-      for (std::size_t i = 1; i < raw.size(); ++i) {
-        if (raw[i - 1].pole) continue;  // a pole's p-curve may legitimately span half a period or more
-        // only jumps beyond 3/4 of a period: a one-division edge may span half a period (the
-        // semicircular trailing-edge arc of a revolved tip)
-        raw[i].uv[k] = cad::Shape::unwrap_towards(raw[i].uv[k], raw[i - 1].uv[k], per[k]);
-      }
+  }
+  // the loop's last point and its first, one node at one place after unwrapping (a wrapped
+  // face's seam ends where its rebuilt wire starts)
+  while (raw.size() > 3 && raw.front().node == raw.back().node &&
+         std::abs(raw.front().uv[0] - raw.back().uv[0]) + std::abs(raw.front().uv[1] - raw.back().uv[1]) <
+             1e-9 * (1 + std::abs(raw.front().uv[0]) + std::abs(raw.front().uv[1])))
+    raw.pop_back();
+}
+
+Builder::Loop Builder::build_wire(int f, const std::vector<cad::EdgeUse>& wire, const std::vector<char>& flip) {
+  Loop raw = wire_points(f, wire, flip);
+  const auto per = S.face_periods(f);
+  drop_detours(raw, per);
+  unwrap_loop(raw, per);
+  return raw;
+}
+
+// A wire closes in the plane when its closing segment (last point -> first) does not jump by
+// most of a period (a pole's segment may). A wrapped face (periodic in u, bounded by two closed
+// edges and a seam used twice, e.g. a blade lofted around its sections) whose closed edges
+// both run the same way round (Rotor 67's blade: hub and casing curves both u 1 -> 0, the seam
+// up at u = 1 and down at u = 0) does not: the unwrapped chain ends two periods away from its
+// start and the loop crosses the whole domain. The wire is then rebuilt with the first closed,
+// full-period edge use (or its junction/slide curve) run the other way, which makes it the
+// boundary of the face's band [0, period] x [v0, v1]; the 3D face is the same either way (an
+// orientation defect of the wire, not of the geometry).
+bool Builder::loop_closes(const Loop& raw, std::array<double, 2> per) {
+  if (raw.size() < 3 || raw.back().pole) return true;
+  for (int k = 0; k < 2; ++k)
+    if (cad::Shape::period_jump(raw.front().uv[k], raw.back().uv[k], per[k])) return false;
+  return true;
+}
+
+Builder::Loop Builder::closed_wire(int f, const std::vector<cad::EdgeUse>& wire) {
+  const auto per = S.face_periods(f);
+  std::vector<char> flip(wire.size(), 0);
+  Loop raw = build_wire(f, wire, flip);
+  if (loop_closes(raw, per)) return raw;
+  for (std::size_t iu = 0; iu < wire.size(); ++iu) {
+    int e = wire[iu].edge;
+    auto vs = S.edge_vertices(e);
+    if (S.edge_degenerate(e) || S.edge_is_seam(e, f) || vs[0] != vs[1]) continue;
+    flip[iu] = 1;
+    Loop r2 = build_wire(f, wire, flip);
+    flip[iu] = 0;
+    if (!loop_closes(r2, per)) continue;
+    log("sweep: face " + std::to_string(f) + ": the wire does not close in the parameter plane (wrapped face); closed edge " +
+        std::to_string(e) + " taken the other way round");
+    return r2;
+  }
+  throw StageError("sweep: face " + std::to_string(f) + " (" + cad::tag_name(S.face_tag(f)) + ", " + S.face_surface_type(f) +
+                   "): a boundary loop does not close in the parameter plane (it ends a period away from its start) "
+                   "and no closed edge of the loop can be reversed to close it; heal the face (its wire orientation)");
+}
+
+// Inner loops a period away from the outer one (each loop was unwrapped on its own) are moved
+// next to it, and all of them into the face's parameter range.
+void Builder::align_loops(int f, std::vector<Loop>& loops) const {
+  auto per = S.face_periods(f);
+  for (int k = 0; k < 2; ++k) {
+    if (!(per[k] > 0)) continue;
+    double lo = INFINITY, hi = -INFINITY;
+    for (auto& p : loops[0]) lo = std::min(lo, p.uv[k]), hi = std::max(hi, p.uv[k]);
+    for (std::size_t l = 1; l < loops.size(); ++l) {
+      double mean = 0;
+      for (auto& p : loops[l]) mean += p.uv[k] / loops[l].size();
+      double shift = 0;
+      if (mean < lo) shift = per[k] * std::ceil((lo - mean) / per[k]);
+      if (mean > hi) shift = -per[k] * std::ceil((mean - hi) / per[k]);
+      for (auto& p : loops[l]) p.uv[k] += shift;
     }
-    // the loop's last point and its first, one node at one place after unwrapping (a wrapped
-    // face's seam ends where its rebuilt wire starts)
-    while (raw.size() > 3 && raw.front().node == raw.back().node &&
-           std::abs(raw.front().uv[0] - raw.back().uv[0]) + std::abs(raw.front().uv[1] - raw.back().uv[1]) <
-               1e-9 * (1 + std::abs(raw.front().uv[0]) + std::abs(raw.front().uv[1])))
-      raw.pop_back();
-    return raw;
-  };
-  // A wire closes in the plane when its closing segment (last point -> first) does not jump by
-  // most of a period (a pole's segment may). A wrapped face (periodic in u, bounded by two closed
-  // edges and a seam used twice, e.g. a blade lofted around its sections) whose closed edges
-  // both run the same way round (Rotor 67's blade: hub and casing curves both u 1 -> 0, the seam
-  // up at u = 1 and down at u = 0) does not: the unwrapped chain ends two periods away from its
-  // start and the loop crosses the whole domain. The wire is then rebuilt with the first closed,
-  // full-period edge use (or its junction/slide curve) run the other way, which makes it the
-  // boundary of the face's band [0, period] x [v0, v1]; the 3D face is the same either way (an
-  // orientation defect of the wire, not of the geometry).
-  auto per_f = S.face_periods(f);
-  auto closes = [&](const std::vector<LP>& raw) {
-    if (raw.size() < 3 || raw.back().pole) return true;
-    for (int k = 0; k < 2; ++k)
-      if (cad::Shape::period_jump(raw.front().uv[k], raw.back().uv[k], per_f[k])) return false;
-    return true;
-  };
+    // all loops a period away from the face's parameter range (a rebuilt wrapped wire
+    // unwrapped from its seam's far side): back into it, where Reparam's tables, the shell's
+    // face grid and the node parameters of the contract live
+    auto b = S.face_uv_bounds(f);
+    double centre = k == 0 ? 0.5 * (b.u0 + b.u1) : 0.5 * (b.v0 + b.v1);
+    double mid = 0.5 * (lo + hi);
+    double n = std::round((centre - mid) / per[k]);
+    if (n != 0)
+      for (auto& l : loops)
+        for (auto& p : l) p.uv[k] += n * per[k];
+  }
+}
+
+// The face's boundary loops in its (unwrapped) parameter plane; throws when none is left.
+std::vector<Builder::Loop> Builder::face_loops(int f) {
+  std::vector<Loop> loops;
   for (auto& wire : S.face_wires(f)) {
-    std::vector<char> flip(wire.size(), 0);
-    std::vector<LP> raw = build_wire(wire, flip);
-    if (!closes(raw)) {
-      bool fixed = false;
-      for (std::size_t iu = 0; iu < wire.size() && !fixed; ++iu) {
-        int e = wire[iu].edge;
-        auto vs = S.edge_vertices(e);
-        if (S.edge_degenerate(e) || S.edge_is_seam(e, f) || vs[0] != vs[1]) continue;
-        flip[iu] = 1;
-        auto r2 = build_wire(wire, flip);
-        if (closes(r2)) {
-          raw = std::move(r2), fixed = true;
-          log("sweep: face " + std::to_string(f) + ": the wire does not close in the parameter plane (wrapped face); closed edge " +
-              std::to_string(e) + " taken the other way round");
-        }
-        flip[iu] = 0;
-      }
-      if (!fixed)
-        throw StageError("sweep: face " + std::to_string(f) + " (" + cad::tag_name(S.face_tag(f)) + ", " + S.face_surface_type(f) +
-                         "): a boundary loop does not close in the parameter plane (it ends a period away from its start) "
-                         "and no closed edge of the loop can be reversed to close it; heal the face (its wire orientation)");
-    }
+    Loop raw = closed_wire(f, wire);
     if (raw.size() >= 3) loops.push_back(std::move(raw));
   }
-  if (loops.empty()) return;
-  // inner loops a period away from the outer one (each loop was unwrapped on its own)
-  {
-    auto per = S.face_periods(f);
-    for (int k = 0; k < 2; ++k) {
-      if (!(per[k] > 0)) continue;
-      double lo = INFINITY, hi = -INFINITY;
-      for (auto& p : loops[0]) lo = std::min(lo, p.uv[k]), hi = std::max(hi, p.uv[k]);
-      for (std::size_t l = 1; l < loops.size(); ++l) {
-        double mean = 0;
-        for (auto& p : loops[l]) mean += p.uv[k] / loops[l].size();
-        double shift = 0;
-        if (mean < lo) shift = per[k] * std::ceil((lo - mean) / per[k]);
-        if (mean > hi) shift = -per[k] * std::ceil((mean - hi) / per[k]);
-        for (auto& p : loops[l]) p.uv[k] += shift;
-      }
-      // all loops a period away from the face's parameter range (a rebuilt wrapped wire
-      // unwrapped from its seam's far side): back into it, where Reparam's tables, the shell's
-      // face grid and the node parameters of the contract live
-      auto b = S.face_uv_bounds(f);
-      double centre = k == 0 ? 0.5 * (b.u0 + b.u1) : 0.5 * (b.v0 + b.v1);
-      double mid = 0.5 * (lo + hi);
-      double n = std::round((centre - mid) / per[k]);
-      if (n != 0)
-        for (auto& l : loops)
-          for (auto& p : l) p.uv[k] += n * per[k];
-    }
-  }
-  {
-    std::set<std::uint32_t> seen;
-    face_bnodes[f].clear();
-    for (auto& l : loops)
-      for (auto& p : l)
-        if (seen.insert(p.node).second) face_bnodes[f].push_back(p.node);
-  }
-  if (copy_from >= 0) {
-    copy_face(copy_from, f, face_bnodes[f]);
-    return;
-  }
-  Reparam RP(S, f);
-  detail::UVMeshInput in;
-  std::vector<std::uint32_t> bnode;
-  std::vector<V3> bx;
-  std::vector<double> bh;
-  // Smooth boundary points: where the face's boundary is tangent-continuous in 3D, a curved
-  // triangle cannot have two boundary edges (its corner there opens to 180 degrees and det J
-  // vanishes): inside a CAD edge always, at a CAD vertex when the tangents of the edges that
-  // meet there differ by less than 20 degrees (the semicircular arc closing a blunt trailing
-  // edge at a revolved tip continues the straight trailing-edge lines).
+  if (loops.empty())
+    throw StageError("sweep: face " + std::to_string(f) + " (" + cad::tag_name(S.face_tag(f)) + ", " + S.face_surface_type(f) +
+                     "): no boundary loop of three points or more is left in its parameter plane (" +
+                     std::to_string(S.face_wires(f).size()) + " wire(s)); the face cannot be meshed: heal it (its wires)");
+  align_loops(f, loops);
+  return loops;
+}
+
+// Smooth boundary points: where the face's boundary is tangent-continuous in 3D, a curved
+// triangle cannot have two boundary edges (its corner there opens to 180 degrees and det J
+// vanishes): inside a CAD edge always, at a CAD vertex when the tangents of the edges that
+// meet there differ by less than 20 degrees (the semicircular arc closing a blunt trailing
+// edge at a revolved tip continues the straight trailing-edge lines).
+std::vector<char> Builder::smooth_points(const std::vector<Loop>& loops) const {
+  std::vector<char> smooth_of;
   auto tangent = [&](int e, bool at_end, bool reversed) {
     auto r = S.edge_range(e);
     double t = (at_end != reversed) ? r.hi : r.lo;
@@ -1047,9 +1106,22 @@ void Builder::mesh_face(int f, int copy_from) {
         double ni = norm(ti), no = norm(to);
         smooth = ni > 0 && no > 0 && dot(ti, to) > std::cos(20 * M_PI / 180) * ni * no;
       }
-      in.smooth.push_back(smooth ? 1 : 0);
+      smooth_of.push_back(smooth ? 1 : 0);
     }
   }
+  return smooth_of;
+}
+
+// The parameter-plane mesher's input for face f: boundary points and segments in Reparam's
+// plane, the surface, its normals and the size field (capturing rp and fb, which must outlive it).
+detail::UVMeshInput Builder::uv_input(int f, const std::vector<Loop>& loops, const Reparam& RP, FaceBoundary& fb) {
+  detail::UVMeshInput in;
+  in.smooth = smooth_points(loops);
+  for (auto& l : loops)
+    for (auto& p : l) in.pole.push_back(p.pole ? 1 : 0);
+  auto& bnode = fb.node;
+  auto& bx = fb.x;
+  auto& bh = fb.h;
   for (auto& l : loops) {
     int first = static_cast<int>(in.uv.size());
     for (std::size_t i = 0; i < l.size(); ++i) {
@@ -1065,12 +1137,11 @@ void Builder::mesh_face(int f, int copy_from) {
   }
   const bool is_wall = wall[f] != 0;
   const double hmax = is_wall ? O.max_size : O.farfield_size;
-  const double theta = O.turn_angle_deg * M_PI / 180;
-  in.point = [&](double U, double V) {
+  in.point = [this, f, &RP](double U, double V) {
     auto q = RP.inv(U, V);
     return v3(S.face_point(f, q[0], q[1]));
   };
-  in.size = [&](double u, double v) {
+  in.size = [this, f, &RP, &bx, &bh, hmax](double u, double v) {
     auto q = RP.inv(u, v);
     double uu = q[0], vv = q[1];
     V3 x = v3(S.face_point(f, uu, vv));
@@ -1090,21 +1161,19 @@ void Builder::mesh_face(int f, int copy_from) {
     h = std::min({h, hgrad, hmax});
     return std::max(h, O.min_size);
   };
-  if (std::getenv("MESHFLOW_SWEEP_DEBUG")) {
-    std::ostringstream o;
-    o << "face " << f << ": loops";
-    for (auto& l : loops) o << " " << l.size();
-    for (auto& l : loops) for (auto& p : l) o << " " << p.node << "[" << p.uv[0] << "," << p.uv[1] << "]";
-    log(o.str());
-  }
-  in.normal = [&](double U, double V) {
+  in.normal = [this, f, &RP](double U, double V) {
     auto q = RP.inv(U, V);
     return v3(S.face_normal(f, q[0], q[1]));
   };
-  in.max_turn = theta;
+  in.orientation = parameter_orientation(S, f);
+  in.max_turn = O.turn_angle_deg * M_PI / 180;
   in.min_length = O.min_size;
   in.refine_ratio = O.refine_ratio;
   in.smooth_passes = O.smooth_passes;
+  return in;
+}
+
+detail::UVMeshOutput Builder::mesh_parameter_plane(int f, const detail::UVMeshInput& in) {
   detail::UVMeshOutput out;
   try {
     out = detail::mesh_uv(in);
@@ -1121,6 +1190,17 @@ void Builder::mesh_face(int f, int copy_from) {
   if (std::getenv("MESHFLOW_SWEEP_DEBUG"))
     log("face " + std::to_string(f) + ": " + std::to_string(out.uv.size()) + " points, " + std::to_string(out.tris.size()) +
         " triangles, " + std::to_string(out.passes) + " passes, min quality " + std::to_string(out.min_quality));
+  if (out.folded > 0)
+    throw StageError("sweep: face " + std::to_string(f) + " (" + cad::tag_name(S.face_tag(f)) + ", " + S.face_surface_type(f) +
+                     "): " + std::to_string(out.folded) +
+                     " triangle(s) of its parameter-plane mesh fold over in 3D (their normal opposes the surface's) after "
+                     "refinement; the parameterisation is singular there (a pole): lower the wall sizes or heal the face");
+  return out;
+}
+
+// The parameter-plane triangles as 3D triangles of face f, oriented out of the fluid; the new
+// points become nodes on the face.
+void Builder::face_triangles(int f, const detail::UVMeshOutput& out, const Reparam& RP, const std::vector<std::uint32_t>& bnode) {
   std::vector<std::uint32_t> node(out.uv.size(), kNone);
   for (std::size_t i = 0; i < bnode.size(); ++i) node[i] = bnode[i];
   for (std::size_t i = bnode.size(); i < out.uv.size(); ++i) {
@@ -1141,29 +1221,62 @@ void Builder::mesh_face(int f, int copy_from) {
     if (dot(nrm, fn) < 0) std::swap(g[1], g[2]);
     face_tris[f].push_back(g);
   }
-  // At a pole the parameter plane's pole segment collapses to one node: an edge x-y with the
-  // segment's two ends on opposite sides gives the triangles (pole, x, y) twice, a fold of the
-  // fan around the pole (the parametric body's nose). Both copies go: the pole's fan is closed
-  // by the triangles on either side of them, which share the edges pole-x and pole-y.
+}
+
+// At a pole the parameter plane's pole segment collapses to one node: an edge x-y with the
+// segment's two ends on opposite sides gives the triangles (pole, x, y) twice, a fold of the
+// fan around the pole (the parametric body's nose). Both copies go: the pole's fan is closed
+// by the triangles on either side of them, which share the edges pole-x and pole-y.
+void Builder::drop_pole_folds(int f) {
+  std::map<std::array<std::uint32_t, 3>, int> seen;
+  auto key = [](std::array<std::uint32_t, 3> g) {
+    std::sort(g.begin(), g.end());
+    return g;
+  };
+  for (auto& g : face_tris[f]) ++seen[key(g)];
+  std::size_t before = face_tris[f].size();
+  face_tris[f].erase(std::remove_if(face_tris[f].begin(), face_tris[f].end(),
+                                    [&](const std::array<std::uint32_t, 3>& g) { return seen[key(g)] == 2; }),
+                     face_tris[f].end());
+  for (auto& [k, c] : seen)
+    if (c > 2)
+      throw StageError("sweep: face " + std::to_string(f) + " has a triangle " + std::to_string(c) +
+                       " times over after mapping its parameter plane to 3D (a pole or seam folded); refine the face");
+  if (before != face_tris[f].size())
+    log("sweep: face " + std::to_string(f) + ": " + std::to_string((before - face_tris[f].size()) / 2) +
+        " folded triangle pair(s) at a pole removed");
+}
+
+void Builder::mesh_face(int f, int copy_from) {
+  std::vector<Loop> loops = face_loops(f);
   {
-    std::map<std::array<std::uint32_t, 3>, int> seen;
-    auto key = [](std::array<std::uint32_t, 3> g) {
-      std::sort(g.begin(), g.end());
-      return g;
-    };
-    for (auto& g : face_tris[f]) ++seen[key(g)];
-    std::size_t before = face_tris[f].size();
-    face_tris[f].erase(std::remove_if(face_tris[f].begin(), face_tris[f].end(),
-                                      [&](const std::array<std::uint32_t, 3>& g) { return seen[key(g)] == 2; }),
-                       face_tris[f].end());
-    for (auto& [k, c] : seen)
-      if (c > 2)
-        throw StageError("sweep: face " + std::to_string(f) + " has a triangle " + std::to_string(c) +
-                         " times over after mapping its parameter plane to 3D (a pole or seam folded); refine the face");
-    if (before != face_tris[f].size())
-      log("sweep: face " + std::to_string(f) + ": " + std::to_string((before - face_tris[f].size()) / 2) +
-          " folded triangle pair(s) at a pole removed");
+    std::set<std::uint32_t> seen;
+    face_bnodes[f].clear();
+    for (auto& l : loops)
+      for (auto& p : l)
+        if (seen.insert(p.node).second) face_bnodes[f].push_back(p.node);
   }
+  if (copy_from >= 0) {
+    copy_face(copy_from, f, face_bnodes[f]);
+    return;
+  }
+  if (std::getenv("MESHFLOW_SWEEP_DEBUG")) {
+    std::ostringstream o;
+    o << "face " << f << ": loops";
+    for (auto& l : loops) o << " " << l.size();
+    for (auto& l : loops) for (auto& p : l) o << " " << p.node << "[" << p.uv[0] << "," << p.uv[1] << "]";
+    log(o.str());
+  }
+  Reparam RP(S, f);
+  FaceBoundary fb;
+  detail::UVMeshInput in = uv_input(f, loops, RP, fb);
+  detail::UVMeshOutput out = mesh_parameter_plane(f, in);
+  face_triangles(f, out, RP, fb.node);
+  drop_pole_folds(f);
+  if (face_tris[f].empty())
+    throw StageError("sweep: face " + std::to_string(f) + " (" + cad::tag_name(S.face_tag(f)) + ", " + S.face_surface_type(f) +
+                     "): its parameter-plane mesh of " + std::to_string(out.tris.size()) +
+                     " triangle(s) leaves none after mapping to 3D (all collapsed at poles); the face cannot be meshed");
   ++R.faces_meshed;
 }
 

@@ -11,7 +11,11 @@
 // balance (30° turn angle, min/max size) computed here. Faces: constrained Delaunay
 // triangulation (CGAL 2D) of the face's (u,v) domain, conforming to the edge nodes, refined by
 // inserting points where a triangle's 3D edges are longer than the local size (curvature rule,
-// graded from the boundary), then smoothed; junction strips are quadrilaterals.
+// graded from the boundary), then smoothed; junction strips are quadrilaterals. Seams and poles:
+// a seam edge is in the face's loop twice, a period apart, its nodes shared by both sides; a
+// degenerate edge (a sphere's pole, a cone's apex) is a segment of the loop whose two ends are the
+// pole's one node, its triangle dropped. A face the mesher cannot mesh (no loop left, no
+// triangle, a triangle folded over in 3D) is an error naming the face, never an empty face.
 //
 // ── The linear mesh contract (sweep → tet → curve → optimise → split) ──────────────────
 //   entities   CAD vertex k → (0, k+1), CAD edge e → (1, e+1), CAD face f → (2, f+1);

@@ -73,7 +73,7 @@ void run(StageContext& ctx) {
 }
 
 StageRegistrar reg({.kind = "sweep",
-                    .version = 7,
+                    .version = 8,
                     .summary = "surface meshes of all faces (CDT in the parameter plane) and the one-layer prism/hex near field",
                     .libraries = {},
                     .run = run});

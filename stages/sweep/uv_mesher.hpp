@@ -22,6 +22,9 @@ namespace meshflow::sweep::detail {
 struct UVMeshInput {
   std::vector<std::array<double, 2>> uv;     // boundary points (any scaling of u, v)
   std::vector<std::array<int, 2>> segments;  // closed loops of constrained segments
+  // optional, per boundary point: 1 where the segment starting there is a pole (a degenerate
+  // edge: both its ends are one point of the surface); segments of zero 3D length are poles too
+  std::vector<char> pole;
   // optional, per boundary point: 1 where the boundary is tangent-continuous in 3D. No output
   // triangle has two boundary segments meeting at such a point (curved, its corner there would
   // open to 180 degrees): at the end such a triangle is split (a point off the shorter segment,
@@ -33,6 +36,12 @@ struct UVMeshInput {
   // (radians) is refined while its longest edge exceeds min_length
   std::function<std::array<double, 3>(double, double)> normal;
   double max_turn = 0, min_length = 0;
+  // optional: +1 or -1, the sign of (dS/dU x dS/dV) . normal on this face (0: unknown). With it,
+  // a triangle whose 3D normal opposes the surface's at its centroid (folded: round a pole, where
+  // the parameter plane's triangles fan over more than half a turn, or thin in a strongly sheared
+  // plane) is counted: the swaps are redone refusing folds where they fold one, no smoothing move
+  // makes one, and out.folded counts those left.
+  int orientation = 0;
   double refine_ratio = 1.3;
   double min_quality = 0.4;  // 3D shape quality 4 sqrt(3) area / sum l^2 below which a triangle gets its circumcentre
   int max_passes = 60;
@@ -46,7 +55,8 @@ struct UVMeshOutput {
   int passes = 0;
   int smooth_corner_splits = 0;  // triangles split because two boundary segments met at a smooth point
   int smooth_corner_flips = 0;   // such flat triangles whose third edge was flipped instead
-  double min_quality = 1;  // of the result
+  double min_quality = 1;  // of the result (a pole's own triangles, points in 3D, left out)
+  int folded = 0;          // triangles whose 3D normal opposes the surface's (with in.orientation)
 };
 
 // Throws std::runtime_error (crossing constraints, a point budget exceeded) with the reason.
