@@ -93,8 +93,16 @@ void classify(const Shape& s, Analysis& a, double tol) {
 
 // Smallest radius of curvature over a grid of points inside each wall face (both principal
 // curvatures, convex and concave alike): the balance stage's curvature rule needs it.
+// Samples near a singular point (a vertex of a degenerate edge: a sphere's pole, a cone's apex)
+// are not counted: an apex's curvature is unbounded and a pole's grid is crowded, neither a
+// feature size the walls can be meshed to; the surface mesher grades into them.
 void sample_curvature(const Shape& s, Analysis& a) {
   constexpr int n = 12;
+  std::vector<Vec3> singular;
+  for (int e = 0; e < s.num_edges(); ++e)
+    if (s.edge_degenerate(e)) singular.push_back(s.vertex_point(s.edge_vertices(e)[0]));
+  a.singular_points = (int)singular.size();
+  const double near = 0.05 * a.wall_max;
   double kmax = 0;
   for (int f : a.walls) {
     auto uv = s.face_uv_bounds(f);
@@ -102,11 +110,16 @@ void sample_curvature(const Shape& s, Analysis& a) {
       for (int j = 0; j < n; ++j) {
         double u = uv.u0 + (i + 0.5) / n * (uv.u1 - uv.u0), v = uv.v0 + (j + 0.5) / n * (uv.v1 - uv.v0);
         if (!s.face_contains_uv(f, u, v)) continue;
+        Vec3 p = s.face_point(f, u, v);
+        if (std::any_of(singular.begin(), singular.end(), [&](const Vec3& q) { return distance(p, q) < near; })) {
+          ++a.curvature_skipped;
+          continue;
+        }
         auto c = s.face_curvature(f, u, v);
         if (!c.defined) continue;
         ++a.curvature_samples;
         double k = std::max(std::abs(c.k1), std::abs(c.k2));
-        if (k > kmax) kmax = k, a.min_radius_face = f, a.min_radius_at = s.face_point(f, u, v);
+        if (k > kmax) kmax = k, a.min_radius_face = f, a.min_radius_at = p;
       }
   }
   a.min_radius = kmax > 0 ? 1 / kmax : std::numeric_limits<double>::infinity();
@@ -211,7 +224,13 @@ Choices choose(const Analysis& a) {
   c.min_size_why = std::isfinite(a.min_radius)
                        ? "the tightest radius of curvature on the walls is " + fmt(a.min_radius) + " " + a.units +
                              " (face " + std::to_string(a.min_radius_face) + ", " + std::to_string(a.curvature_samples) +
-                             " samples): 30 degrees of it is " + fmt(by_curvature) +
+                             " samples" +
+                             (a.curvature_skipped ? "; " + std::to_string(a.curvature_skipped) + " within 5% of the walls' "
+                                                    "largest side of " + std::to_string(a.singular_points) +
+                                                    " singular point(s), a pole or an apex, not counted: the mesher "
+                                                    "grades into them"
+                                                  : std::string()) +
+                             "): 30 degrees of it is " + fmt(by_curvature) +
                              " of the walls' largest side, kept within [0.003, 0.01]"
                        : "the walls are flat (" + std::to_string(a.curvature_samples) + " samples): the default 0.01";
   // Far-field elements: the walls' largest side in a body's box (5 body lengths away); in a

@@ -27,6 +27,8 @@ struct Analysis {
   int min_radius_face = -1;
   cad::Vec3 min_radius_at;
   int curvature_samples = 0;
+  int curvature_skipped = 0;  // samples near a singular point (pole, apex), not counted
+  int singular_points = 0;    // vertices of degenerate edges
   double shortest_wall_edge = 0;
   // A body standing on a plane (a half model's root): "x-" .. "z+" (the side of its bounding
   // box), or "none"; `stands_why` the faces and areas that decided it.

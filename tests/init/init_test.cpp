@@ -91,6 +91,14 @@ TEST_CASE("init: layer thickness, wall sizes and far-field size come from the me
   CHECK(cw.thickness < 0.05 * w.wall_max);
   CHECK(cw.min_size < 0.01);
   CHECK(cw.min_size >= 0.003);
+  // the cone's apex is a singular point (a degenerate edge): its unbounded curvature is not a
+  // feature size; samples within 5% of the cone's length of it are not counted
+  auto cone = analysed(data / "corpus/cone.step");
+  CHECK(cone.singular_points == 1);
+  CHECK(cone.curvature_skipped > 0);
+  CHECK(cone.min_radius > 0.04);  // the cone's radius of curvature 0.075 from its apex
+  // a sphere's poles are singular too, and its curvature the same everywhere
+  CHECK(s.singular_points == 2);
   // a flat-walled body: no curvature, the default
   auto flat = analysed(data / "corpus/cylinder_in_box.step");
   CHECK(flat.domain);

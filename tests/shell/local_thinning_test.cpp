@@ -8,6 +8,7 @@
 #include "support.hpp"
 
 #include "../cad/test_context.hpp"
+#include "wall_inputs.hpp"
 #include "engine/stage.hpp"
 #include "stages/medial/medial.hpp"
 
@@ -25,21 +26,7 @@ using meshflow::testing::TestContext;
 
 namespace {
 
-// geometry -> heal -> medial, the contexts own the files
-struct Walls {
-  std::unique_ptr<TestContext> geo, heal, med;
-  Artifact shape, medial;
-  Walls(const std::string& kind, const nlohmann::json& geo_params) {
-    geo = std::make_unique<TestContext>(kind, geo_params);
-    geo->run();
-    heal = std::make_unique<TestContext>("heal", nlohmann::json::object(), std::vector<Artifact>{geo->artifact("shape")});
-    heal->run();
-    shape = heal->artifact("shape");
-    med = std::make_unique<TestContext>("medial", nlohmann::json::object(), std::vector<Artifact>{shape});
-    med->run();
-    medial = med->artifact("medial");
-  }
-};
+using Walls = shelltest::WallInputs;
 
 // the figure after `key` in a message ("... at most 0.3606 ...")
 double number_after(const std::string& text, const std::string& key) {

@@ -7,6 +7,7 @@
 #include "support.hpp"
 
 #include "../cad/test_context.hpp"
+#include "wall_inputs.hpp"
 #include "engine/stage.hpp"
 #include "stages/cad/cad.hpp"
 #include "stages/medial/medial.hpp"
@@ -38,20 +39,9 @@ double min_offset(const sh::ShellData& d) {
   return t;
 }
 
-// geometry -> heal -> medial once per geometry variant; the contexts own the files
-struct Inputs {
-  std::unique_ptr<TestContext> geo, heal, med;
-  Artifact shape, medial;
-  explicit Inputs(nlohmann::json geo_params) {
-    geo = std::make_unique<TestContext>("naca_wing", geo_params);
-    geo->run();
-    heal = std::make_unique<TestContext>("heal", nlohmann::json::object(), std::vector<Artifact>{geo->artifact("shape")});
-    heal->run();
-    shape = heal->artifact("shape");
-    med = std::make_unique<TestContext>("medial", nlohmann::json::object(), std::vector<Artifact>{shape});
-    med->run();
-    medial = med->artifact("medial");
-  }
+// geometry -> heal -> medial once per geometry variant
+struct Inputs : shelltest::WallInputs {
+  explicit Inputs(const nlohmann::json& geo_params) : WallInputs("naca_wing", geo_params) {}
 };
 Inputs& default_wing() {
   static Inputs in(nlohmann::json{{"incidence_deg", 0.0}});
