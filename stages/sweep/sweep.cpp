@@ -1127,7 +1127,6 @@ detail::UVMeshInput Builder::uv_input(int f, const std::vector<Loop>& loops, con
     for (std::size_t i = 0; i < l.size(); ++i) {
       in.uv.push_back(RP.fwd(l[i].uv[0], l[i].uv[1]));
       bnode.push_back(l[i].node);
-      in.node.push_back(static_cast<long>(l[i].node));
       bx.push_back(X(l[i].node));
       in.segments.push_back({first + static_cast<int>(i), first + static_cast<int>((i + 1) % l.size())});
     }
@@ -1191,14 +1190,6 @@ detail::UVMeshOutput Builder::mesh_parameter_plane(int f, const detail::UVMeshIn
   if (std::getenv("MESHFLOW_SWEEP_DEBUG"))
     log("face " + std::to_string(f) + ": " + std::to_string(out.uv.size()) + " points, " + std::to_string(out.tris.size()) +
         " triangles, " + std::to_string(out.passes) + " passes, min quality " + std::to_string(out.min_quality));
-  if (out.chord_splits > 0)
-    log("sweep: face " + std::to_string(f) + ": " + std::to_string(out.chord_splits) +
-        " point(s) inserted where two edges of its parameter plane joined the same two nodes (a seam node's two sides)");
-  if (out.shared_chords > 0)
-    throw StageError("sweep: face " + std::to_string(f) + " (" + cad::tag_name(S.face_tag(f)) + ", " + S.face_surface_type(f) +
-                     "): " + std::to_string(out.shared_chords) +
-                     " edge(s) of its mesh are in more than two triangles (a point of its parameter plane joined to both "
-                     "sides of a seam, round a pole); lower the wall sizes or heal the face");
   if (out.folded > 0)
     throw StageError("sweep: face " + std::to_string(f) + " (" + cad::tag_name(S.face_tag(f)) + ", " + S.face_surface_type(f) +
                      "): " + std::to_string(out.folded) +

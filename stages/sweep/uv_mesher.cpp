@@ -120,7 +120,6 @@ class UVMesher {
     setup();
     insert_boundary();
     refine();
-    one_edge_per_chord();
     collect_triangles();
     nb = static_cast<int>(in.uv.size());
     np = static_cast<int>(out.uv.size());
@@ -150,7 +149,6 @@ class UVMesher {
   int nb = 0, np = 0;  // boundary points, all points (after refinement)
   std::vector<std::vector<int>> vt, nbr;  // triangles and neighbours of each point
   bool fold_check_ = true;                // tq counts a folded triangle as 0 (see swaps)
-  std::vector<int> ident;                 // per boundary point: the first boundary point of its node (in.node)
 
   void setup() {
     out.uv = in.uv;
@@ -159,11 +157,6 @@ class UVMesher {
     if (in.normal)
       for (auto& q : in.uv) n3.push_back(in.normal(q[0], q[1]));
     pole = pole_groups(in, p3);
-    if (in.node.size() == in.uv.size()) {
-      std::map<long, int> first;
-      ident.resize(in.uv.size());
-      for (int i = 0; i < static_cast<int>(in.uv.size()); ++i) ident[i] = first.emplace(in.node[i], i).first->second;
-    }
   }
   double turn(int a, int b) const {
     const auto &x = n3[a], &y = n3[b];
@@ -348,91 +341,6 @@ class UVMesher {
     }
   }
 
-  // ── one 3D edge per chord ──
-  // A boundary node met at two places of the plane (a seam's two sides) is one mesh node: a point
-  // joined to both of its copies makes two edges of the plane one 3D edge (chord), in four
-  // triangles. Round a pole the ring of points is so short that a triangle spans half a turn or
-  // more: on the corpus cone at min_size 0.003..0.006, the apex ring had 3 points (seam node 158
-  // at u = 0 and 2 pi, 919 at u = 3.0, 1029 at u = 4.41); 919 was joined to both copies of 158
-  // (u spans 3.0 and 3.28), the chord 158-919 was in four wall triangles (the apex fan's
-  // (apex, 158, 919) and three over it) and the four prisms on them shared one side face
-  // (contract: not conforming). Chords are counted per node pair (in.node) over the triangles
-  // in the domain, a pole's own triangle left out; those at a pole are drop_pole_folds' (sweep).
-  int id(int v) const { return v < static_cast<int>(ident.size()) ? ident[v] : v; }
-  bool chords_on() const { return !ident.empty(); }
-  // the chord of plane edge (a, b), or {-1, -1} when it is not counted (at a pole)
-  std::pair<int, int> chord(int a, int b) const {
-    if (pole_of(a) >= 0 || pole_of(b) >= 0) return {-1, -1};
-    int x = id(a), y = id(b);
-    return {std::min(x, y), std::max(x, y)};
-  }
-  template <class Fn>
-  void for_chords(int a, int b, int c, Fn fn) const {
-    if (collapsed(a, b, c)) return;
-    for (auto [x, y] : {std::pair{a, b}, std::pair{b, c}, std::pair{c, a}}) {
-      auto k = chord(x, y);
-      if (k.first >= 0) fn(k);
-    }
-  }
-  // Where a chord is in more than two triangles, the plane edge of it that is not a constraint and
-  // whose midpoint (in the plane) is farthest in 3D from the corners of its two triangles is split
-  // there, and again until every chord is in two triangles at most (20 passes).
-  void one_edge_per_chord() {
-    if (!chords_on()) return;
-    for (int pass = 0; pass < 20; ++pass) {
-      mark_domains(cdt);
-      std::map<std::pair<int, int>, int> uses;
-      std::map<std::pair<int, int>, std::map<std::pair<int, int>, CDT::Edge>> edges;  // chord -> plane edges
-      for (auto f = cdt.finite_faces_begin(); f != cdt.finite_faces_end(); ++f) {
-        if (!f->info().in_domain()) continue;
-        int v[3] = {f->vertex(0)->info(), f->vertex(1)->info(), f->vertex(2)->info()};
-        if (collapsed(v[0], v[1], v[2])) continue;
-        for (int i = 0; i < 3; ++i) {
-          int a = f->vertex(cdt.cw(i))->info(), b = f->vertex(cdt.ccw(i))->info();
-          auto k = chord(a, b);
-          if (k.first < 0) continue;
-          ++uses[k];
-          edges[k].emplace(std::pair{std::min(a, b), std::max(a, b)}, CDT::Edge(f, i));
-        }
-      }
-      std::vector<Point> split;
-      for (auto& [k, n] : uses) {
-        if (n <= 2) continue;
-        double best = -1;
-        Point bp;
-        for (auto& [pe, e] : edges[k]) {
-          if (cdt.is_constrained(e)) continue;
-          const Point &s0 = e.first->vertex(cdt.cw(e.second))->point(), &s1 = e.first->vertex(cdt.ccw(e.second))->point();
-          Point m((s0.x() + s1.x()) / 2, (s0.y() + s1.y()) / 2);
-          auto x = in.point(m.x(), m.y());
-          double d = INFINITY;
-          auto nb_face = e.first->neighbor(e.second);
-          for (auto vh : {e.first->vertex(0), e.first->vertex(1), e.first->vertex(2), nb_face->vertex(0), nb_face->vertex(1),
-                          nb_face->vertex(2)})
-            if (!cdt.is_infinite(vh)) d = std::min(d, dist3(x, p3[vh->info()]));
-          if (d > best) best = d, bp = m;
-        }
-        if (best > 0) split.push_back(bp);
-      }
-      if (split.empty()) break;
-      for (auto& p : split) {
-        auto before = cdt.number_of_vertices();
-        auto v = cdt.insert(p);
-        if (cdt.number_of_vertices() == before) continue;
-        v->info() = static_cast<int>(out.uv.size());
-        out.uv.push_back({p.x(), p.y()});
-        p3.push_back(in.point(p.x(), p.y()));
-        if (in.normal) n3.push_back(in.normal(p.x(), p.y()));
-        ++out.chord_splits;
-      }
-    }
-  }
-  std::map<std::pair<int, int>, int> chord_uses() const {
-    std::map<std::pair<int, int>, int> uses;
-    for (auto& t : out.tris) for_chords(t[0], t[1], t[2], [&](std::pair<int, int> k) { ++uses[k]; });
-    return uses;
-  }
-
   // One pass's candidates, best first, at most one per triangle and its neighbours.
   void insert_pass(std::vector<Cand>& cand) {
     std::stable_sort(cand.begin(), cand.end(), [](const Cand& x, const Cand& y) { return x.score > y.score; });
@@ -509,8 +417,6 @@ class UVMesher {
       auto et = edge_triangles();
       int flips = 0;
       std::vector<char> done(out.tris.size(), 0);
-      std::map<std::pair<int, int>, int> uses;  // (with in.node) a flip puts no chord in a third triangle
-      if (chords_on()) uses = chord_uses();
       for (auto& [e, ts] : et) {
         if (ts.size() != 2 || done[ts[0]] || done[ts[1]]) continue;
         auto &T0 = out.tris[ts[0]], &T1 = out.tris[ts[1]];
@@ -529,15 +435,6 @@ class UVMesher {
           continue;
         double before = std::min(tq(T0[0], T0[1], T0[2]), tq(T1[0], T1[1], T1[2]));
         double after = std::min(tq(N0[0], N0[1], N0[2]), tq(N1[0], N1[1], N1[2]));
-        if (after > before * 1.01 + 1e-12 && chords_on()) {
-          std::map<std::pair<int, int>, int> delta;
-          for (auto& t : {T0, T1}) for_chords(t[0], t[1], t[2], [&](std::pair<int, int> k) { --delta[k]; });
-          for (auto& t : {N0, N1}) for_chords(t[0], t[1], t[2], [&](std::pair<int, int> k) { ++delta[k]; });
-          bool ok = true;
-          for (auto& [k, d] : delta) ok &= !(d > 0 && uses[k] + d > 2);
-          if (!ok) continue;
-          for (auto& [k, d] : delta) uses[k] += d;
-        }
         if (after > before * 1.01 + 1e-12) {
           T0 = N0, T1 = N1;
           done[ts[0]] = done[ts[1]] = 1;
@@ -703,8 +600,6 @@ class UVMesher {
       out.min_quality = std::min(out.min_quality, q3(t));
       if (folded(out.tris[t][0], out.tris[t][1], out.tris[t][2])) ++out.folded;
     }
-    if (chords_on())
-      for (auto& [k, n] : chord_uses()) out.shared_chords += n > 2;
   }
 };
 

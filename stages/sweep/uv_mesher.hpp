@@ -25,10 +25,6 @@ struct UVMeshInput {
   // optional, per boundary point: 1 where the segment starting there is a pole (a degenerate
   // edge: both its ends are one point of the surface); segments of zero 3D length are poles too
   std::vector<char> pole;
-  // optional, per boundary point: the mesh node it is (equal ids: one node met at several places of
-  // the plane, a seam's two sides or a pole's ends). With it, no two edges of the plane join the same
-  // two nodes unless the 3D edge stays shared by two triangles at most (see UVMesher::one_edge_per_chord)
-  std::vector<long> node;
   // optional, per boundary point: 1 where the boundary is tangent-continuous in 3D. No output
   // triangle has two boundary segments meeting at such a point (curved, its corner there would
   // open to 180 degrees): at the end such a triangle is split (a point off the shorter segment,
@@ -61,8 +57,6 @@ struct UVMeshOutput {
   int smooth_corner_flips = 0;   // such flat triangles whose third edge was flipped instead
   double min_quality = 1;  // of the result (a pole's own triangles, points in 3D, left out)
   int folded = 0;          // triangles whose 3D normal opposes the surface's (with in.orientation)
-  int chord_splits = 0;    // points inserted because two edges of the plane were one 3D edge (with in.node)
-  int shared_chords = 0;   // 3D edges left in more than two triangles (with in.node; 0 unless it failed)
 };
 
 // Throws std::runtime_error (crossing constraints, a point budget exceeded) with the reason.
