@@ -44,18 +44,17 @@
 // treats (junction or slide), whose radius goes to 0 at the edge by construction and is handled
 // by the topology (the layer is swept along both walls), not by thinning. (A ball is a corner
 // ball when its centre is within 2 r / sin(θ/2) + h/2 of a concave edge of the sample's face with
-// fluid angle θ < 170°, r the larger of its refined radius and its empty-ball radius: a ball whose
-// nearest sample is much farther than the wall is a gap in the sampling beside the edge, its
-// centre known only to within its empty-ball radius; NekMesh's cylinder: 36 such balls on the
-// junction circles, refined radius down to 6e-6, stats.local_thinning.corner_balls_unresolved.)
+// fluid angle θ < 170°, r its refined radius. NekMesh's cylinder once had 36 balls of radius
+// down to 6e-6 beside its junction circles: gaps in medial's sampling of its seamed face, fixed
+// in medial; counting such balls as corners by their empty-ball radius left Rotor 67's blade
+// roots unthinned and 168 elements tangled after optimise.)
 // The limit is local: each sample keeps its own bound, spread along the walls as below, so small
 // balls thin the layer where they are. The stage refuses T only when more than
 // `max_thinned_area` (0.5) of the wall area (face samples weighted by h²) would be thinner than
 // `thin_fraction` (0.5) × T; the message names the narrowest place (coordinates, CAD face) and
 // the largest thickness that fits (the smoothed bound commutes with the cap T, so it is the
 // area quantile of the uncapped bound / thin_fraction). Where it thins, the log and
-// stats.local_thinning {samples, of, area_fraction, area_fraction_below, min, at, where,
-// corner_balls_unresolved} say how much and where (only when it acts). Optionally (`lfs_factor` > 0) also a_i <=
+// stats.local_thinning {samples, of, area_fraction, area_fraction_below, min, at, where} say how much and where (only when it acts). Optionally (`lfs_factor` > 0) also a_i <=
 // lfs_factor × lfs_i, the local feature size (distance to the medial object on either side):
 // the fluid-side radius of a convex body such as a wing is large everywhere (it only sees the
 // far field and the root wall), so a thin trailing edge or leading edge thins the shell only

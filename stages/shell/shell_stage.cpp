@@ -376,7 +376,7 @@ struct Stage {
   // radius, lfs bound), spread g-Lipschitz along the walls; small balls thin the layer where they
   // are, not everywhere. A refusal is left for a thickness the domain cannot hold over a large
   // part of the wall (thinning_verdict).
-  long corner_balls = 0, unresolved_corner_balls = 0, limited_samples = 0, limited_by_lfs = 0;
+  long corner_balls = 0, limited_samples = 0, limited_by_lfs = 0;
   double lfs_factor = 0, thin_fraction = 0.5, max_thinned_area = 0.5;
   double lim_min = INFINITY;
   Vec3 lim_at{};
@@ -403,11 +403,8 @@ struct Stage {
   // A corner ball: its centre lies in the corner region of a treated concave edge of the sample's
   // face (within 2 r / sin(angle/2) of the edge: the bisector distance of a ball of radius r tangent
   // to both faces, doubled); its radius goes to 0 at the edge by construction and the topology
-  // (junction, slide, averaged normals) handles it. r is the larger of the refined radius and the
-  // empty-ball radius: a ball whose nearest sample is farther than the wall (NekMesh's cylinder:
-  // refined radius 6e-6..5e-4, empty ball 3e-3..5e-3, centre 3e-3..5e-3 from the junction circle,
-  // between the edge samples and the first row of the cylinder's samples 9e-3 away) is a sampling
-  // gap whose centre is known only to within its empty-ball radius, not a narrow passage.
+  // (junction, slide, averaged normals) handles it. r is the ball's refined radius (see shell.hpp
+  // for why not its empty-ball radius).
   bool near_treated_concave_edge(const medial::Sample& s, const Vec3& c, double r) const {
     for (int f : s.faces) {
       if (f < 0) continue;
@@ -419,10 +416,8 @@ struct Stage {
     }
     return false;
   }
-  bool corner_ball(const medial::Sample& s, const medial::MedialPoint& mp, bool& unresolved) const {
-    if (near_treated_concave_edge(s, mp.c, mp.radius)) return true;
-    unresolved = mp.ball_radius > mp.radius && near_treated_concave_edge(s, mp.c, mp.ball_radius);
-    return unresolved;
+  bool corner_ball(const medial::Sample& s, const medial::MedialPoint& mp) const {
+    return near_treated_concave_edge(s, mp.c, mp.radius);
   }
 
   // a_i: the bound of wall sample k (INFINITY: none)
@@ -430,10 +425,8 @@ struct Stage {
     const auto& si = M.info[ws[k]];
     double a = INFINITY;
     if (si.r_in >= 0 && si.pole_in >= 0) {
-      bool unresolved = false;
-      if (corner_ball(M.samples[ws[k]], M.points[si.pole_in], unresolved)) {
+      if (corner_ball(M.samples[ws[k]], M.points[si.pole_in])) {
         ++corner_balls;
-        unresolved_corner_balls += unresolved;
       } else {
         a = alpha * si.r_in;
       }
@@ -535,12 +528,7 @@ struct Stage {
                 {"thin_fraction", thin_fraction},
                 {"min", ws_t[kmin]},
                 {"at", M.samples[ws[kmin]].p},
-                {"where", place(kmin)},
-                {"corner_balls_unresolved", unresolved_corner_balls}};
-    if (unresolved_corner_balls > 0)
-      ctx.log("shell: " + std::to_string(unresolved_corner_balls) +
-              " fluid balls beside treated concave edges are nearer the wall than any sample (sampling gaps): corner balls, "
-              "the layer is not thinned for them");
+                {"where", place(kmin)}};
     if (frac_below > max_thinned_area) refuse(frac_below, kmin);
     if (thinned > 0) {
       std::ostringstream o;
@@ -1965,7 +1953,7 @@ struct Stage {
     stats["corner_balls_ignored"] = corner_balls;
     // only when it acts (a sample thinned, or a gap ball taken for a corner): other shells, and
     // the goldens that hold their stats, keep their bytes
-    if (thinning.at("samples").get<long>() > 0 || unresolved_corner_balls > 0) stats["local_thinning"] = thinning;
+    if (thinning.at("samples").get<long>() > 0) stats["local_thinning"] = thinning;
     stats["self_intersections"] = inter.pairs;
     if (crossing_rounds > 0)  // only when it acts: shells that never crossed keep their bytes
       stats["not_honoured"]["thinned_for_crossings"] = {{"rounds", crossing_rounds},
