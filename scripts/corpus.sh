@@ -47,7 +47,7 @@ for input in "${inputs[@]}"; do
       printf '| %s | refused: %s | - | - | - | - | - | - | - | - | - |\n' "$name" "$(tail -1 "$dir/init.log")" >> "$scratch/table"
       continue
     fi
-    decided=$(grep -q 'symmetry_plane: [xyz]' "$wf" && echo "half model" || { grep -q 'fluid: box' "$wf" && echo "body in box" || echo "domain"; })
+    decided=$(grep -q 'symmetry_plane: [xyz][+-]}' "$wf" && echo "half model" || { grep -q 'fluid: box' "$wf" && echo "body in box" || echo "domain"; })
   fi
   start=$(date +%s.%N)
   timeout "$timeout_s" "$bin" run "$wf" --cache "$dir/cache" --out "$dir/out" > "$dir/log" 2>&1
