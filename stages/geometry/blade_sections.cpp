@@ -105,6 +105,10 @@ void check_loops(const BladeSections& b, const std::string& source) {
 
 }  // namespace
 
+bool is_rotor67_export(std::string_view text) {
+  return upper(std::string(text)).find("SURFACE NUMBER") != std::string::npos;
+}
+
 BladeSections parse_rotor67(std::string_view text, const std::string& source) {
   Lines L(text);
   const auto& v = L.v;

@@ -49,6 +49,8 @@ struct BladeSections {
   int tip_section = -1;  // rotor67: NS-2 (section 13 of 14, 0-based 12): the blade tip of the file
 };
 
+// A Rotor 67 export: the text has a "Surface number" block (any case), as parse_rotor67 needs.
+bool is_rotor67_export(std::string_view text);
 // Parses a Rotor 67 export file held in memory. `source` names it in messages.
 BladeSections parse_rotor67(std::string_view text, const std::string& source);
 // Parses a CSV section file held in memory. Hub and casing radii: when <= 0, the smallest radius

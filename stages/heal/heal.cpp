@@ -363,7 +363,7 @@ void run(StageContext& ctx) {
              check_si = P.at("check_self_intersection").get<std::string>() != "off";
   const int si_level = P.at("check_self_intersection").get<std::string>() == "edges" ? 4 : 5;
   const std::string fluid_mode = P.at("fluid").get<std::string>(), tag_mode = P.at("tags").get<std::string>();
-  const std::string symmetry_plane = P.value("symmetry_plane", std::string("none"));
+  const std::string symmetry_plane = P.at("symmetry_plane").get<std::string>();
   if (symmetry_plane != "none" && fluid_mode != "box")
     throw StageError(src + ": symmetry_plane: " + symmetry_plane + " needs fluid: box (it says which side of the body's "
                      "far-field box lies on its root plane)");

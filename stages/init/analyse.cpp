@@ -9,16 +9,18 @@
 #include <limits>
 
 namespace meshflow::init {
-namespace {
-using cad::Box;
-using cad::Shape;
-using cad::Vec3;
 
 std::string fmt(double v) {
   char b[32];
   std::snprintf(b, sizeof b, "%.4g", v);
   return b;
 }
+
+namespace {
+using cad::Box;
+using cad::Shape;
+using cad::Vec3;
+
 double side(const Box& b, int k) { return b.hi[k] - b.lo[k]; }
 double largest_side(const Box& b) { return std::max({side(b, 0), side(b, 1), side(b, 2)}); }
 double smallest_side(const Box& b) { return std::min({side(b, 0), side(b, 1), side(b, 2)}); }
@@ -39,15 +41,22 @@ int box_corners(const Shape& s, const Box& b, double tol) {
   return n;
 }
 
-// A planar face lying on one of the box's planes (heal's box rule makes it farfield or symmetry).
-bool on_box_plane(const Shape& s, int f, const Box& b, double tol) {
-  if (s.face_surface_type(f) != "plane") return false;
+// The sides of the box (axis k, hi 0 or 1) on whose plane a planar face lies: heal's box rule
+// makes such a face farfield or symmetry; a body's such faces may be a half model's root.
+std::vector<std::pair<int, int>> box_sides(const Shape& s, int f, const Box& b, double tol) {
+  std::vector<std::pair<int, int>> sides;
+  if (s.face_surface_type(f) != "plane") return sides;
   Box fb = s.face_box(f);
-  for (int k = 0; k < 3; ++k)
-    if (side(fb, k) <= 2 * tol && (std::abs(fb.lo[k] - b.lo[k]) <= 2 * tol || std::abs(fb.hi[k] - b.hi[k]) <= 2 * tol))
-      return true;
-  return false;
+  for (int k = 0; k < 3; ++k) {
+    if (side(fb, k) > 2 * tol) continue;
+    for (int hi = 0; hi < 2; ++hi)
+      if (std::abs((hi ? fb.hi[k] : fb.lo[k]) - (hi ? b.hi[k] : b.lo[k])) <= 2 * tol) sides.push_back({k, hi});
+  }
+  return sides;
 }
+
+// A solid with more shells than solids: inner shells, holes in the fluid.
+bool has_voids(const Analysis& a) { return a.solids > 0 && a.shells > a.solids; }
 
 // The faces of a domain's outer shell: those connected (through shared edges) to a face that
 // reaches the bounding box. With holes (inner shells), heal tags the outer shell farfield and the
@@ -75,8 +84,7 @@ std::vector<char> outer_shell(const Shape& s, const Box& b, double tol) {
 // The body-or-domain rule, with the figures it used.
 void classify(const Shape& s, Analysis& a, double tol) {
   a.corners = box_corners(s, a.box, tol);
-  const bool voids = a.solids > 0 && a.shells > a.solids;
-  if (voids) {
+  if (has_voids(a)) {
     a.domain = true;
     a.why = std::to_string(a.solids) + " solid(s) with " + std::to_string(a.shells) +
             " shells: the inner shells are holes in the fluid, so the file is the fluid domain";
@@ -119,7 +127,7 @@ void sample_curvature(const Shape& s, Analysis& a) {
         if (!c.defined) continue;
         ++a.curvature_samples;
         double k = std::max(std::abs(c.k1), std::abs(c.k2));
-        if (k > kmax) kmax = k, a.min_radius_face = f, a.min_radius_at = p;
+        if (k > kmax) kmax = k, a.min_radius_face = f;
       }
   }
   a.min_radius = kmax > 0 ? 1 / kmax : std::numeric_limits<double>::infinity();
@@ -133,16 +141,8 @@ void sample_curvature(const Shape& s, Analysis& a) {
 void find_root_plane(const Shape& s, Analysis& a, double tol) {
   double area[3][2] = {};
   int faces[3][2] = {};
-  for (int f : a.walls) {
-    if (s.face_surface_type(f) != "plane") continue;
-    Box fb = s.face_box(f);
-    for (int k = 0; k < 3; ++k) {
-      if (side(fb, k) > 2 * tol) continue;
-      for (int hi = 0; hi < 2; ++hi)
-        if (std::abs((hi ? fb.hi[k] : fb.lo[k]) - (hi ? a.box.hi[k] : a.box.lo[k])) <= 2 * tol)
-          area[k][hi] += s.face_area(f), ++faces[k][hi];
-    }
-  }
+  for (int f : a.walls)
+    for (auto [k, hi] : box_sides(s, f, a.box, tol)) area[k][hi] += s.face_area(f), ++faces[k][hi];
   std::vector<std::string> roots;
   std::string figures;
   for (int k = 0; k < 3; ++k)
@@ -173,32 +173,25 @@ Analysis analyse(const Shape& s) {
   a.solids = s.num_solids();
   a.shells = s.num_shells();
   a.faces = s.num_faces();
-  a.edges = s.num_edges();
   if (a.faces == 0) throw StageError("the CAD file holds no faces: nothing to mesh");
   a.box = s.box();
   a.extent = largest_side(a.box);
   const double tol = 1e-6 * std::hypot(side(a.box, 0), side(a.box, 1), side(a.box, 2));
   classify(s, a, tol);
-  const std::vector<char> outer = a.domain ? outer_shell(s, a.box, tol) : std::vector<char>(a.faces, 0);
+  // a domain's walls: not on its box's planes, and not its outer shell when it has holes
+  const std::vector<char> outer = a.domain && has_voids(a) ? outer_shell(s, a.box, tol) : std::vector<char>(a.faces, 0);
   for (int f = 0; f < a.faces; ++f)
-    if (!a.domain || (!on_box_plane(s, f, a.box, tol) && !(a.solids > 0 && a.shells > a.solids && outer[f]))) a.walls.push_back(f);
+    if (!a.domain || (box_sides(s, f, a.box, tol).empty() && !outer[f])) a.walls.push_back(f);
   if (a.walls.empty())
     throw StageError("every face of the domain lies on its bounding box: there is no body to put a boundary layer on");
   a.wall_box = s.face_box(a.walls[0]);
   for (int f : a.walls) {
     Box b = s.face_box(f);
-    for (int k = 0; k < 3; ++k) {
-      double lo[3] = {a.wall_box.lo.x, a.wall_box.lo.y, a.wall_box.lo.z}, hi[3] = {a.wall_box.hi.x, a.wall_box.hi.y, a.wall_box.hi.z};
-      lo[k] = std::min(lo[k], b.lo[k]), hi[k] = std::max(hi[k], b.hi[k]);
-      a.wall_box = {{lo[0], lo[1], lo[2]}, {hi[0], hi[1], hi[2]}};
-    }
+    a.wall_box.lo = {std::min(a.wall_box.lo.x, b.lo.x), std::min(a.wall_box.lo.y, b.lo.y), std::min(a.wall_box.lo.z, b.lo.z)};
+    a.wall_box.hi = {std::max(a.wall_box.hi.x, b.hi.x), std::max(a.wall_box.hi.y, b.hi.y), std::max(a.wall_box.hi.z, b.hi.z)};
   }
   a.wall_max = largest_side(a.wall_box);
   a.wall_min = smallest_side(a.wall_box);
-  a.shortest_wall_edge = std::numeric_limits<double>::infinity();
-  for (int f : a.walls)
-    for (int e : s.face_edges(f))
-      if (!s.edge_degenerate(e)) a.shortest_wall_edge = std::min(a.shortest_wall_edge, s.edge_length(e));
   sample_curvature(s, a);
   if (!a.domain) find_root_plane(s, a, tol);
   return a;

@@ -11,7 +11,7 @@ namespace meshflow::init {
 
 struct Analysis {
   std::string units;
-  int solids = 0, shells = 0, faces = 0, edges = 0;
+  int solids = 0, shells = 0, faces = 0;
   cad::Box box;        // the whole shape
   double extent = 0;   // largest side of `box`
   // body: a closed body (or several) meshed in a far-field box; domain: the fluid region itself
@@ -22,14 +22,12 @@ struct Analysis {
   std::vector<int> walls;  // faces that will be walls (a domain's faces on its box planes are not)
   cad::Box wall_box;
   double wall_max = 0, wall_min = 0;  // largest and smallest side of wall_box
-  // smallest radius of curvature sampled on the walls (inf: all flat) and where
+  // smallest radius of curvature sampled on the walls (inf: all flat) and its face
   double min_radius = 0;
   int min_radius_face = -1;
-  cad::Vec3 min_radius_at;
   int curvature_samples = 0;
   int curvature_skipped = 0;  // samples near a singular point (pole, apex), not counted
   int singular_points = 0;    // vertices of degenerate edges
-  double shortest_wall_edge = 0;
   // A body standing on a plane (a half model's root): "x-" .. "z+" (the side of its bounding
   // box), or "none"; `stands_why` the faces and areas that decided it.
   std::string symmetry_plane = "none";
@@ -49,5 +47,8 @@ struct Choices {
   std::string farfield_why;
 };
 Choices choose(const Analysis& a);
+
+// A figure for the workflow's comments (4 significant digits).
+std::string fmt(double v);
 
 }  // namespace meshflow::init

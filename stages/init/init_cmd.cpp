@@ -8,7 +8,6 @@
 #include "stages/init/init.hpp"
 
 #include <cctype>
-#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -28,12 +27,6 @@ struct Options {
   int order = 4, layers = 10, blades = 0;
   bool force = false;
 };
-
-std::string fmt(double v) {
-  char b[32];
-  std::snprintf(b, sizeof b, "%.4g", v);
-  return b;
-}
 
 int usage_error(const std::string& what) {
   std::cerr << "meshflow init: " << what << "\nusage: meshflow " << kUsage << "\n";
@@ -107,9 +100,18 @@ std::string comment(const std::string& text) {
   return out;
 }
 
+// The input file's path as the workflow names it: relative to the workflow's folder.
+std::string input_path(const Options& o) {
+  return yaml_path(fs::relative(fs::absolute(o.cad), fs::absolute(o.out).parent_path()).generic_string());
+}
+
+// The workflow's outputs: the healed CAD and the final mesh for the solvers.
+constexpr const char* kOutputs =
+    "outputs:\n"
+    "  shape: {from: heal, formats: [step]}\n"
+    "  mesh: {from: split, formats: [msh, vtu, nektar]}\n";
+
 std::string workflow_text(const Options& o, const Analysis& a, const Choices& c) {
-  fs::path out_dir = fs::absolute(o.out).parent_path();
-  std::string cad_path = fs::relative(fs::absolute(o.cad), out_dir).generic_string();
   const std::string u = a.units;
   std::ostringstream y;
   y << "# Written by `meshflow init " << o.cad.filename().string() << "` for " << o.cad.filename().string() << ": "
@@ -121,7 +123,7 @@ std::string workflow_text(const Options& o, const Analysis& a, const Choices& c)
     << "meshflow: 1\n"
     << "name: " << workflow_name(o.cad) << "\n"
     << "stages:\n";
-  y << "  geometry:\n    kind: step\n    with: {file: " << yaml_path(cad_path)
+  y << "  geometry:\n    kind: step\n    with: {file: " << input_path(o)
     << (o.units.empty() ? "" : ", units: " + o.units) << "}\n";
   const bool half = a.symmetry_plane != "none";
   if (a.domain)
@@ -157,9 +159,7 @@ std::string workflow_text(const Options& o, const Analysis& a, const Choices& c)
   y << comment(std::to_string(o.layers) + " layers across the boundary layer, growing by 1.3 from the wall" +
                (o.layers == 10 ? " (--layers N); " : "; ") + "first_height: H sets the wall layer's height instead.")
     << "  split: {kind: split, needs: [optimise], with: {layers: " << o.layers << ", ratio: 1.3}}\n";
-  y << "outputs:\n"
-    << "  shape: {from: heal, formats: [step]}\n"
-    << "  mesh: {from: split, formats: [msh, vtu, nektar]}\n";
+  y << kOutputs;
   return y.str();
 }
 
@@ -175,7 +175,7 @@ std::string blade_workflow_text(const Options& o) {
   std::ifstream in(o.cad, std::ios::binary);
   if (!in) throw StageError("cannot read the section file '" + o.cad.string() + "'");
   std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  const bool rotor67 = text.find("Surface number") != std::string::npos || text.find("SURFACE NUMBER") != std::string::npos;
+  const bool rotor67 = geometry::is_rotor67_export(text);
   geometry::BladeSections bs = rotor67 ? geometry::parse_rotor67(text, o.cad.string())
                                        : geometry::parse_blade_csv(text, o.cad.string());
   int blades = o.blades ? o.blades : bs.blades;
@@ -185,8 +185,6 @@ std::string blade_workflow_text(const Options& o) {
   for (auto& l : bs.loops)
     for (auto& p : l) hub = std::min(hub, p.r), casing = std::max(casing, p.r), x0 = std::min(x0, p.x), x1 = std::max(x1, p.x);
   const std::string u = o.units.empty() ? (rotor67 ? "ft" : "m") : o.units;
-  fs::path out_dir = fs::absolute(o.out).parent_path();
-  std::string file = fs::relative(fs::absolute(o.cad), out_dir).generic_string();
   std::ostringstream y;
   y << "# Written by `meshflow init " << o.cad.filename().string() << "`: a blade row of " << blades << " blades, "
     << bs.loops.size() << " sections (" << (rotor67 ? "NASA Rotor 67 export" : "CSV") << "), in " << u << ".\n"
@@ -198,7 +196,7 @@ std::string blade_workflow_text(const Options& o) {
     << "stages:\n";
   y << comment("Inflow and outflow planes one axial chord (" + fmt(x1 - x0) + " " + u + ") from the blade; " +
                (o.blades ? "--blades " + std::to_string(blades) : "the file's " + std::to_string(blades) + " blades") + ".")
-    << "  geometry:\n    kind: blade_sector\n    with: {file: " << yaml_path(file) << ", format: " << (rotor67 ? "rotor67" : "csv")
+    << "  geometry:\n    kind: blade_sector\n    with: {file: " << input_path(o) << ", format: " << (rotor67 ? "rotor67" : "csv")
     << ", blades: " << blades << (o.units.empty() ? "" : ", units: " + o.units) << ", upstream: 1.0, downstream: 1.0}\n"
     << "  heal: {kind: heal, needs: [geometry]}\n"
     << "  medial: {kind: medial, needs: [heal]}\n";
@@ -215,9 +213,7 @@ std::string blade_workflow_text(const Options& o) {
     << "  curve: {kind: curve, needs: [heal, tet], with: {order: " << o.order << "}}\n"
     << "  optimise: {kind: optimise, needs: [heal, curve]}\n"
     << "  split: {kind: split, needs: [optimise], with: {layers: " << o.layers << ", ratio: 1.3}}\n";
-  y << "outputs:\n"
-    << "  shape: {from: heal, formats: [step]}\n"
-    << "  mesh: {from: split, formats: [msh, vtu, nektar]}\n";
+  y << kOutputs;
   return y.str();
 }
 
