@@ -133,6 +133,7 @@ class Reparam {
         su[i * (N + 1) + j] = std::sqrt(d.du.x * d.du.x + d.du.y * d.du.y + d.du.z * d.du.z);
         sv[i * (N + 1) + j] = std::sqrt(d.dv.x * d.dv.x + d.dv.y * d.dv.y + d.dv.z * d.dv.z);
       }
+    if (conformal_setup(S, f, su, sv)) return;
     // variation of the line means: how much the u-speed changes from one v-line to another
     auto spread = [&](const std::vector<double>& sp, bool along_u) {
       double mn = INFINITY, mx = 0;
@@ -172,7 +173,14 @@ class Reparam {
       }
     ia_ = ia;
   }
+  bool conformal() const { return conformal_; }
+  double shear() const { return shear_; }
   std::array<double, 2> fwd(double u, double v) const {
+    if (conformal_) {
+      double a = ia_ == 0 ? u : v, b = ia_ == 0 ? v : u;
+      double A = c_ * (a - lo_[ia_]), Bv = interp(B_.data(), (b - lo_[1 - ia_]) / (hi_[1 - ia_] - lo_[1 - ia_]) * N);
+      return ia_ == 0 ? std::array<double, 2>{A, Bv} : std::array<double, 2>{Bv, A};
+    }
     double a = ia_ == 0 ? u : v, b = ia_ == 0 ? v : u;
     double tb = (b - lo_[1 - ia_]) / (hi_[1 - ia_] - lo_[1 - ia_]) * N;
     double ta = (a - lo_[ia_]) / (hi_[ia_] - lo_[ia_]) * N;
@@ -184,6 +192,10 @@ class Reparam {
   }
   std::array<double, 2> inv(double U, double V) const {
     double Av = ia_ == 0 ? U : V, Bv = ia_ == 0 ? V : U;
+    if (conformal_) {
+      double a = lo_[ia_] + Av / c_, b = lo_[1 - ia_] + inverse(B_.data(), Bv) / N * (hi_[1 - ia_] - lo_[1 - ia_]);
+      return ia_ == 0 ? std::array<double, 2>{a, b} : std::array<double, 2>{b, a};
+    }
     double tb = inverse(B_.data(), Bv);
     int j = std::clamp(static_cast<int>(std::floor(tb)), 0, N - 1);
     double w = std::clamp(tb - j, 0.0, 1.0);
@@ -199,6 +211,75 @@ class Reparam {
   std::array<double, 2> lo_{}, hi_{};
   bool swap_ = false;
   int ia_ = 0;
+  bool conformal_ = false;  // the conformal map of a surface of revolution (conformal_setup)
+  double c_ = 1;            // its scale: plane length per unit of the angle parameter
+  double shear_ = 0;        // the arc-length map's shear on a surface of revolution (0: none)
+
+  // A parameterisation whose speeds depend on one parameter only and whose derivatives are
+  // orthogonal (|S_a| = r(b), |S_b| = s(b), S_a . S_b = 0: every surface of revolution with a
+  // the angle, OCCT's spheres, tori, cones and cylinders and revolved curves) has a conformal
+  // map: U = c a, V = c integral of s(b) / r(b) db (Mercator's, on a sphere). The line-by-line
+  // arc-length map below shears such a face by (a - a0) r'(b) / s(b): on a whole sphere up to
+  // 5 times at 60 degrees latitude, where Delaunay in the plane is far from Delaunay on the
+  // surface; refining by 3D edge length then over-refines (8 times the triangles the size asks
+  // for on the corpus sphere) and triangles fold near the poles (a far-field sphere at 0.2 R).
+  // r is floored at 2% of its mean (as the arc-length map's speeds are), so a pole (r = 0)
+  // maps to a segment of length 2 pi c at a finite V: the cap inside the floor, 1% of the
+  // radius across, is the only non-conformal part. Where r is constant (planes, cylinders) the
+  // arc-length map is an isometry already and is kept. Sets B_ (V over b), ia_ and c_.
+  bool conformal_setup(const cad::Shape& S, int f, const std::vector<double>& su, const std::vector<double>& sv) {
+    std::vector<double> dots((N + 1) * (N + 1));
+    double smax = 0;
+    for (int i = 0; i <= N; ++i)
+      for (int j = 0; j <= N; ++j) {
+        auto d = S.face_eval(f, at(0, i), at(1, j));
+        dots[i * (N + 1) + j] = d.du.x * d.dv.x + d.du.y * d.dv.y + d.du.z * d.dv.z;
+        smax = std::max({smax, su[i * (N + 1) + j], sv[i * (N + 1) + j]});
+      }
+    if (!(smax > 0)) return false;
+    const double tol = 1e-6 * smax;
+    for (int ia = 0; ia < 2; ++ia) {
+      // speeds at (a index k, b index l)
+      auto at_ab = [&](const std::vector<double>& g, int k, int l) { return ia == 0 ? g[k * (N + 1) + l] : g[l * (N + 1) + k]; };
+      bool separable = true;
+      for (int l = 0; l <= N && separable; ++l)
+        for (int k = 0; k <= N && separable; ++k)
+          separable = std::abs(at_ab(su, k, l) - at_ab(su, 0, l)) <= tol && std::abs(at_ab(sv, k, l) - at_ab(sv, 0, l)) <= tol &&
+                      std::abs(at_ab(dots, k, l)) <= tol * smax;
+      if (!separable) continue;
+      const std::vector<double>& sa = ia == 0 ? su : sv;  // r(b)
+      const std::vector<double>& sb = ia == 0 ? sv : su;  // s(b)
+      double mean_r = 0, mean_s = 0;
+      for (int l = 0; l <= N; ++l) mean_r += at_ab(sa, 0, l) / (N + 1), mean_s += at_ab(sb, 0, l) / (N + 1);
+      if (!(mean_r > 0) || !(mean_s > 0)) continue;
+      // r constant (planes, cylinders): the arc-length map is already an isometry, kept as it is
+      double rmin = INFINITY, rmax = 0;
+      for (int l = 0; l <= N; ++l) rmin = std::min(rmin, at_ab(sa, 0, l)), rmax = std::max(rmax, at_ab(sa, 0, l));
+      if (rmax - rmin <= tol) return false;
+      // the arc-length map's shear, (a range) |r'(b)| / s(b): the conformal map only where it
+      // distorts angles by more than 45 degrees (a whole sphere, torus or cone); below, the
+      // arc-length map keeps lengths (the size field stays isotropic in the plane), which the
+      // conformal map trades for angles (its plane scale is c / r)
+      const double hb0 = (hi_[1 - ia] - lo_[1 - ia]) / N, range_a = hi_[ia] - lo_[ia];
+      shear_ = 0;
+      for (int l = 0; l < N; ++l) {
+        const double dr = std::abs(at_ab(sa, 0, l + 1) - at_ab(sa, 0, l)) / hb0;
+        const double sm = std::max(0.5 * (at_ab(sb, 0, l) + at_ab(sb, 0, l + 1)), 0.02 * mean_s);
+        shear_ = std::max(shear_, range_a * dr / sm);
+      }
+      if (shear_ <= 1) return false;
+      const double floor_r = 0.02 * mean_r, hb = (hi_[1 - ia] - lo_[1 - ia]) / N;
+      c_ = mean_r;
+      B_.assign(N + 1, 0.0);
+      auto g = [&](int l) { return std::max(at_ab(sb, 0, l), 0.02 * mean_s) / std::max(at_ab(sa, 0, l), floor_r); };
+      for (int l = 1; l <= N; ++l) B_[l] = B_[l - 1] + c_ * 0.5 * (g(l - 1) + g(l)) * hb;
+      if (!(B_[N] > 0)) continue;
+      ia_ = ia;
+      conformal_ = true;
+      return true;
+    }
+    return false;
+  }
   std::vector<double> B_, A_;
   double at(int k, int i) const { return lo_[k] + (hi_[k] - lo_[k]) * i / N; }
   // piecewise-linear table y[0..N] at fractional index t (linear extrapolation outside)
@@ -1268,6 +1349,7 @@ void Builder::mesh_face(int f, int copy_from) {
     log(o.str());
   }
   Reparam RP(S, f);
+  if (std::getenv("MESHFLOW_SWEEP_DEBUG")) log("face " + std::to_string(f) + ": " + (RP.conformal() ? "conformal" : "arc-length") + " plane, shear " + std::to_string(RP.shear()));
   FaceBoundary fb;
   detail::UVMeshInput in = uv_input(f, loops, RP, fb);
   detail::UVMeshOutput out = mesh_parameter_plane(f, in);

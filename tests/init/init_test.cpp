@@ -61,6 +61,34 @@ TEST_CASE("init: a far-field sphere around a body is the domain, its outer shell
   CHECK(c.farfield_size == doctest::Approx(0.1 * 200 / 3).epsilon(1e-3));  // a tenth of the domain
 }
 
+// A thin body (1 x 0.12 x 3) in a far-field sphere of radius 100, through init's workflow. The
+// sphere is meshed at the far-field size (20, a tenth of the domain's side) in its parameter
+// plane. The arc-length plane sheared it up to 6 times near the poles: 6,080 triangles where the
+// size asks for ~730, one folded over in 3D and sweep stopped. In the conformal plane of a
+// surface of revolution: ~950 triangles, none folded.
+TEST_CASE("init: a thin body in a far-field sphere 100 times its size runs to a valid mesh, the sphere at its size") {
+  fs::path dir = mftest::temp_dir("init-sphere-farfield");
+  TopoDS_Shape outer = BRepPrimAPI_MakeSphere(gp_Pnt(0.5, 0, 0), 100).Shape();
+  TopoDS_Shape body = BRepPrimAPI_MakeBox(gp_Pnt(0, -0.06, -1.5), 1, 0.12, 3).Shape();
+  REQUIRE(BRepTools::Write(BRepAlgoAPI_Cut(outer, body).Shape(), (dir / "domain.brep").c_str()));
+  fs::path wf = dir / "domain.yaml";
+  REQUIRE(mftest::run_cli({"init", (dir / "domain.brep").string(), "-o", wf.string()}).code == 0);
+  auto run = mftest::sh(std::string(MESHFLOW_EXE) + " run " + wf.string() + " --cache " + (dir / "cache").string() +
+                        " --out " + (dir / "out").string() + " 2>&1");
+  CAPTURE(run.out);
+  REQUIRE(run.code == 0);
+  auto split = mftest::stage_stats(dir / "out", "split");
+  CHECK(split["mesh"]["invalid"] == 0);
+  CHECK(split["problems"].empty());
+  // the sphere (every boundary triangle that is not a wall): equilateral triangles of side 20
+  // tile its area 4 pi 100^2 with ~726
+  const double asked = 4 * M_PI * 100.0 * 100.0 / (std::sqrt(3.0) / 4 * 20.0 * 20.0);
+  const double got = mftest::stage_stats(dir / "out", "sweep")["sweep"]["boundary_triangles"].get<double>();
+  MESSAGE("far-field sphere: " << got << " triangles, " << asked << " asked for");
+  CHECK(got < 2 * asked);
+  CHECK(got > 0.5 * asked);
+}
+
 TEST_CASE("init: a body standing on one side of its box is a half model on that plane, equal ends are not") {
   if (!fs::exists(data / "corpus")) return;
   // the swept wing's root (area 0.082) on z = 0 against its flat tip (0.020): z-

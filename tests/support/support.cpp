@@ -12,6 +12,7 @@
 #include <algorithm>
 #include <array>
 #include <atomic>
+#include <mutex>
 #include <cctype>
 #include <cstdio>
 #include <fcntl.h>
@@ -24,6 +25,20 @@
 
 namespace mftest {
 
+namespace {
+std::mutex g_temp_mutex;
+std::vector<fs::path> g_temp_dirs;  // made by temp_dir in this process
+}  // namespace
+
+void remove_temp_dirs() {
+  std::lock_guard<std::mutex> lock(g_temp_mutex);
+  for (const fs::path& p : g_temp_dirs) {
+    std::error_code ec;
+    fs::remove_all(p, ec);
+  }
+  g_temp_dirs.clear();
+}
+
 fs::path temp_dir(const std::string& tag) {
   static std::atomic<int> counter{0};
   static const unsigned salt = std::random_device{}();
@@ -32,6 +47,8 @@ fs::path temp_dir(const std::string& tag) {
                 std::to_string(counter++));
   fs::remove_all(p);
   fs::create_directories(p);
+  std::lock_guard<std::mutex> lock(g_temp_mutex);
+  g_temp_dirs.push_back(p);
   return p;
 }
 

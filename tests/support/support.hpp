@@ -12,8 +12,11 @@ namespace mftest {
 
 namespace fs = std::filesystem;
 
-// A fresh empty folder under the system temp folder, unique to this process and call.
+// A fresh empty folder under the system temp folder, unique to this process and call. The
+// shared test main removes every such folder when the run passes (kept when a test fails, or
+// with MESHFLOW_KEEP_TEST_DIRS set, to look into).
 fs::path temp_dir(const std::string& tag);
+void remove_temp_dirs();
 void write_text(const fs::path& p, const std::string& text);  // creates parent folders
 std::string read_text(const fs::path& p);                      // "" if unreadable
 // A copy of the workflow `src` at `dst` without the top-level entries (stages and outputs)
