@@ -47,7 +47,7 @@ nlohmann::json UntangleReport::to_json() const {
           {"surface_nodes_moved", surface_nodes_moved},
           {"repaired_sliding_on_cad", repaired_sliding},
           {"max_move_relative", max_move},
-          {"work", {{"jacobian_samples", work}, {"max_per_element", max_element_work}}},
+          {"work", {{"jacobian_samples", work}, {"max_per_element", max_element_work}, {"repairs", repair_work}}},
           {"budget", {{"elements_exhausted", budget_exhausted}, {"no_progress_stop", stage_budget_exhausted},
                       {"time_limit_fired", time_limit_fired}}},
           {"unrepaired", [&] {
@@ -197,8 +197,20 @@ struct OutOfBudget {
   enum Which { element, time } which;
 };
 struct Budget {
-  // stage_used: work since the last repair (the no-progress budget); total: all work
-  double element_used = 0, element_limit = 0, stage_used = 0, stage_limit = 0, total = 0;
+  // stage_used: work since the last repair (the no-progress budget); repair_work: the work of
+  // the elements repaired so far (each one's whole element_used); total: all work
+  double element_used = 0, element_limit = 0, stage_used = 0, stage_limit = 0, repair_work = 0, total = 0;
+  // The no-progress limit. A stage that repaired nothing stops after stage_limit (a hopeless
+  // mesh fails fast). Once it has repaired, one element that uses up its element budget does not
+  // stop it alone, nor does a run of failures costing less than the repairs so far: the limit is
+  // one element_limit more than the larger of stage_limit and the repairs' work (Rotor 67: one element
+  // gave up on its 200 M budget after 84 repairs, which passed the 40 M stage_limit and left 171
+  // of 297 untried, most of them repairable).
+  double repairs = 0;
+  double no_progress_limit() const {
+    if (repairs == 0) return stage_limit;
+    return std::max(stage_limit, repair_work) + std::max(element_limit, 0.0);
+  }
   double time_limit = 0;
   std::chrono::steady_clock::time_point t0, last_tick;
   std::function<void()> tick;  // progress, about every second
@@ -551,7 +563,7 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
       why[bad.block][bad.index] = failed_patch;
       continue;
     }
-    if (B.stage_limit > 0 && B.stage_used >= B.stage_limit) {  // no progress: stop (checked between elements)
+    if (B.stage_limit > 0 && B.stage_used >= B.no_progress_limit()) {  // no progress: stop (checked between elements)
       why[bad.block][bad.index] = stage_budget;
       stopped = stage_budget;
       break;
@@ -785,6 +797,8 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
           rep.max_move = std::max(rep.max_move, d);
         }
         ++rep.repaired;
+        B.repair_work += B.element_used;
+        ++B.repairs;
         B.stage_used = 0;  // progress: the no-progress budget starts again
         ++rep.repaired_at_ring[ring - 1];
         rep.repaired_sliding += mode == 1;
@@ -809,6 +823,7 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
       if (!valid[r.block][r.index]) hopeless[r.block][r.index] = 1;
   }
   rep.work = B.total;
+  rep.repair_work = B.repair_work;
   rep.stage_budget_exhausted = stopped == stage_budget;
   rep.time_limit_fired = stopped == time_limit;
 

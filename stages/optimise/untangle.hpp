@@ -49,7 +49,10 @@
 //           up (reason "budget"), and once `stage_budget` has been used since the last repair
 //           (no progress; checked before each element, so the stage stops within one element
 //           budget of it) the remaining invalid elements are not tried (reason "no progress").
-//           A stage that keeps repairing goes on. Both counts are deterministic (independent of
+//           A stage that repairs nothing stops there. Once it has repaired an element, the limit
+//           is one element_budget more than the larger of stage_budget and the work its repairs
+//           so far took: one element given up does not stop a stage that repairs, and a run of
+//           failures may cost as much as the repairs did. Both counts are deterministic (independent of
 //           the thread count and the machine), so they decide the output reproducibly.
 //           `time_limit` (seconds, 0 = none) is only an outer safety net against a machine far
 //           slower than expected: when it fires the result depends on the machine's speed, and the
@@ -89,7 +92,7 @@ struct UntangleOptions {
   bool surface = true;        // with a shape: try sliding the nodes inside CAD faces when off-CAD moves fail
   // Budgets ("budget" above), in Jacobian evaluations at sample points; <= 0 = unlimited.
   double element_budget = 200e6;  // per invalid element, all its patch attempts (DLR-F6 needs 124e6 for one)
-  double stage_budget = 40e6;     // since the last repair (no progress), checked between elements
+  double stage_budget = 40e6;     // since the last repair (no progress; after a repair at least one element budget and the repairs' work), checked between elements
   double time_limit = 0;          // seconds, safety net only (non-deterministic when it fires); 0 = none
   int max_listed = 20;           // unrepaired elements listed in the report
 };
@@ -120,6 +123,7 @@ struct UntangleReport {
   std::size_t budget_exhausted = 0;                     // elements given up on their element budget
   double work = 0;                                      // Jacobian evaluations at sample points, all patches
   double max_element_work = 0;                          // the most any one invalid element used
+  double repair_work = 0;                               // of it, on the elements it repaired
   bool stage_budget_exhausted = false, time_limit_fired = false;  // stopped for no progress / on the time limit
   double max_move = 0;                                  // largest node displacement / h of its patch
   double seconds = 0;

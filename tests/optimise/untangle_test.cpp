@@ -309,3 +309,98 @@ TEST_CASE("untangle budget: the no-progress budget and the time limit stop the u
   CHECK(t.x == m0.x);
   CHECK(rt.advice().find("untangle_time_limit") != std::string::npos);
 }
+
+TEST_CASE("untangle budget: after repairs, one element given up does not stop the stage, before any repair the no-progress budget does") {
+  // a 4x4x4 cube: interior edge nodes pushed across their tets (repairable) in the first cells,
+  // one boundary edge node pushed (not repairable: the boundary does not move) after them, and one
+  // more repairable push in the last cells. Elements are tried in index order.
+  Mesh m0 = cube_tets(4, 4);
+  const auto& b = m0.blocks[0];
+  const auto& edges = model::edge_nodes(Shape::Tet, 4);
+  // the elements holding node v, lowest and highest index
+  auto span_of = [&](std::uint32_t v) {
+    std::size_t lo = SIZE_MAX, hi = 0;
+    for (std::size_t e = 0; e < b.size(); ++e)
+      for (int a = 0; a < b.nodes_per_element(); ++a)
+        if (b.element(e)[a] == v) lo = std::min(lo, e), hi = std::max(hi, e);
+    return std::pair{lo, hi};
+  };
+  std::vector<char> used(m0.num_nodes(), 0);
+  auto free_vertices = [&](std::size_t e) {
+    for (int a = 0; a < 4; ++a)
+      if (used[b.element(e)[a]]) return false;
+    return true;
+  };
+  auto take = [&](std::size_t e) {
+    for (int a = 0; a < 4; ++a) used[b.element(e)[a]] = 1;
+  };
+  std::size_t after = 0;  // every element of a later push has a higher index than this
+  int repairable = 0;
+  auto push_interior = [&](std::size_t from, std::size_t to) {
+    for (std::size_t e = from; e < to; ++e)
+      for (int k = 0; k < 6; ++k) {
+        const std::uint32_t v = b.element(e)[edges[k][3]];
+        auto [lo, hi] = span_of(v);
+        if (m0.node_entity_dim[v] != 3 || lo <= after || !free_vertices(e)) continue;
+        take(e);
+        push_edge_node(m0, e, k, 1.25);
+        after = hi;
+        ++repairable;
+        return true;
+      }
+    return false;
+  };
+  while (repairable < 8 && push_interior(after + 1, b.size() / 2)) {
+  }
+  REQUIRE(repairable == 8);
+  bool boundary = false;
+  for (std::size_t e = after + 1; e < b.size() && !boundary; ++e)
+    for (int k = 0; k < 6 && !boundary; ++k) {
+      const std::uint32_t v = b.element(e)[edges[k][3]];
+      if (m0.node_entity_dim[v] != 2 || m0.node_entity_dim[b.element(e)[edges[k][2]]] != 2 ||
+          m0.node_entity_dim[b.element(e)[edges[k][4]]] != 2 || span_of(v).first <= after || !free_vertices(e))
+        continue;
+      take(e);
+      push_edge_node(m0, e, k, 3.0);
+      after = span_of(v).second;
+      boundary = true;
+    }
+  REQUIRE(boundary);
+  REQUIRE(push_interior(after + 1, b.size()));
+  meshflow::optimise::UntangleOptions uo;
+  uo.max_rings = 2;
+  uo.element_budget = 0, uo.stage_budget = 0;
+  Mesh full = m0;
+  auto rf = meshflow::optimise::untangle(full, uo, 1);
+  MESSAGE("unlimited: " << rf.invalid_before << " invalid, " << rf.repaired << " repaired, " << rf.invalid_after << " left");
+  REQUIRE(rf.repaired >= 2);
+  REQUIRE(rf.invalid_after >= 1);
+  // a no-progress budget of one sample: the failure after the repairs (given up on its element
+  // budget, or not repaired) does not stop the stage, and the last push is repaired too
+  uo.stage_budget = 1;
+  uo.element_budget = std::max(rf.max_element_work, 1.0);
+  Mesh m = m0;
+  auto r = meshflow::optimise::untangle(m, uo, 1);
+  MESSAGE("repairs' work " << r.repair_work << " of " << r.work << "; unlimited: " << rf.repaired << " repaired, "
+                           << rf.invalid_after << " left");
+  CHECK(r.repaired == rf.repaired);
+  CHECK(r.invalid_after == rf.invalid_after);
+  CHECK(!r.stage_budget_exhausted);
+  CHECK(r.repair_work > 0);
+  CHECK(r.repair_work < r.work);
+  // a stage that repaired nothing still stops after the budget: the boundary push alone
+  Mesh lone = cube_tets(4, 4);
+  for (std::size_t e = 0; e < b.size(); ++e) {
+    bool done = false;
+    for (int k = 0; k < 6 && !done; ++k) {
+      const std::uint32_t v = lone.blocks[0].element(e)[edges[k][3]];
+      if (lone.node_entity_dim[v] == 2 && lone.node_entity_dim[lone.blocks[0].element(e)[edges[k][2]]] == 2 &&
+          lone.node_entity_dim[lone.blocks[0].element(e)[edges[k][4]]] == 2)
+        push_edge_node(lone, e, k, 3.0), done = true;
+    }
+    if (done && e > 40) break;  // a few boundary pushes
+  }
+  auto rl = meshflow::optimise::untangle(lone, uo, 1);
+  CHECK(rl.repaired == 0);
+  CHECK(rl.stage_budget_exhausted);
+}
