@@ -285,6 +285,8 @@ GcReport Cache::gc(const GcOptions& opt) const {
   std::error_code ec;
   for (auto& e : fs::directory_iterator(root_ / "quarantine", ec))
     if (age_seconds(e.path()) >= opt.grace_seconds && fs::remove_all(e.path(), ec) > 0) ++r.quarantine_removed;
+  // What an entry keeps alive: its outputs and the inputs it was computed from (verify checks
+  // those, and drops an entry whose inputs are gone: its provenance can no longer be checked).
   struct Action {
     fs::path file;
     double age;
@@ -296,6 +298,7 @@ GcReport Cache::gc(const GcOptions& opt) const {
     try {
       json j = json::parse(read_file(e.path()));
       for (auto& o : j.at("outputs")) a.digests.push_back(o.at("digest"));
+      for (auto& in : j.at("preimage").value("inputs", json::array())) a.digests.push_back(in.at("digest"));
     } catch (...) {
       fs::remove(e.path(), ec);  // unreadable entry: worthless
       ++r.actions_removed;

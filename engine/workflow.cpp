@@ -88,6 +88,9 @@ json scalar_to_json(const YAML::Node& n, bool* plain) {
   return t;
 }
 
+// YAML's spellings of not-a-number (a plain scalar).
+bool is_nan_text(const std::string& t) { return t == ".nan" || t == ".NaN" || t == ".NAN"; }
+
 json yaml_to_json(const YAML::Node& n, const std::string& ptr, Source& src) {
   if (++src.nodes > kMaxYamlNodes)
     throw WorkflowError(src.file + ":" + std::to_string(n.Mark().line + 1) + ": the workflow expands to more than " +
@@ -98,6 +101,8 @@ json yaml_to_json(const YAML::Node& n, const std::string& ptr, Source& src) {
   switch (n.Type()) {
     case YAML::NodeType::Null: return nullptr;
     case YAML::NodeType::Scalar: {
+      if (n.Tag() != "!" && is_nan_text(n.Scalar()))
+        src.fail(ptr, "'" + dotted(ptr) + "' is " + n.Scalar() + " (not a number): give a finite number.");
       bool plain = false;
       json v = scalar_to_json(n, &plain);
       if (plain) src.raw[ptr] = n.Scalar();
@@ -238,6 +243,11 @@ Workflow load_workflow_text(const std::string& text, const fs::path& file, const
     if (eq == std::string::npos || dot == std::string::npos || dot > eq)
       throw WorkflowError("--set " + o + ": expected STAGE.PARAM=VALUE, e.g. --set split.layers=12");
     std::string stage = o.substr(0, dot), path = o.substr(dot + 1, eq - dot - 1), value = o.substr(eq + 1);
+    if (value.empty())
+      throw WorkflowError("--set " + o + ": the value is empty. Give one, e.g. --set " + stage + "." + path +
+                          "=VALUE (an empty string is --set '" + stage + "." + path + "=\"\"').");
+    if (is_nan_text(value))
+      throw WorkflowError("--set " + o + ": " + value + " is not a number. Give a finite number.");
     if (!doc.contains("stages") || !doc["stages"].is_object() || !doc["stages"].contains(stage)) {
       std::vector<std::string> names;
       if (doc.contains("stages") && doc["stages"].is_object())
@@ -322,7 +332,7 @@ Workflow load_workflow_text(const std::string& text, const fs::path& file, const
       }
       std::string near = nearest_name(d.kind, names);
       src.fail(base + "/kind", "stage '" + name + "': unknown kind '" + d.kind + "'" +
-                                   (near.empty() ? "" : "; did you mean '" + near + "'?") + ". Known kinds: " + known +
+                                   (near.empty() ? "." : "; did you mean '" + near + "'?") + " Known kinds: " + known +
                                    " (`meshflow kinds` describes them).");
     }
     const json* schema = kind_schema(*kind);
