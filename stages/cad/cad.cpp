@@ -29,6 +29,8 @@
 #include <Message.hxx>
 #include <IGESControl_Controller.hxx>
 #include <IGESControl_Writer.hxx>
+#include <IGESData_GlobalSection.hxx>
+#include <IGESData_IGESModel.hxx>
 #include <Message_PrinterOStream.hxx>
 #include <APIHeaderSection_MakeHeader.hxx>
 #include <STEPControl_Writer.hxx>
@@ -212,10 +214,10 @@ void Shape::export_brep(const std::filesystem::path& file) const {
 }
 
 namespace {
-// The STEP header's FILE_NAME time stamp: $SOURCE_DATE_EPOCH (seconds, the reproducible-builds
-// convention) when set, else the epoch itself. Never the wall clock: two runs of one workflow
-// write byte-identical STEP files.
-std::string step_time_stamp() {
+// The time written into STEP and IGES headers, formatted by strftime's `format`:
+// $SOURCE_DATE_EPOCH (seconds, the reproducible-builds convention) when set, else the epoch
+// itself. Never the wall clock: two runs of one workflow write byte-identical files.
+std::string header_time(const char* format) {
   long long t = 0;
   if (const char* e = std::getenv("SOURCE_DATE_EPOCH"); e && *e) {
     char* end = nullptr;
@@ -226,7 +228,7 @@ std::string step_time_stamp() {
   std::tm tm{};
   gmtime_r(&tt, &tm);
   char buf[32];
-  std::strftime(buf, sizeof buf, "%Y-%m-%dT%H:%M:%S", &tm);
+  std::strftime(buf, sizeof buf, format, &tm);
   return buf;
 }
 }  // namespace
@@ -246,7 +248,7 @@ void Shape::export_step(const std::filesystem::path& file) const {
   if (w.Transfer(impl_->shape, STEPControl_AsIs) != IFSelect_RetDone)
     throw StageError("writing the STEP file '" + file.string() + "' failed");
   APIHeaderSection_MakeHeader header(w.Model());
-  header.SetTimeStamp(new TCollection_HAsciiString(step_time_stamp().c_str()));
+  header.SetTimeStamp(new TCollection_HAsciiString(header_time("%Y-%m-%dT%H:%M:%S").c_str()));
   if (w.Write(file.c_str()) != IFSelect_RetDone) throw StageError("writing the STEP file '" + file.string() + "' failed");
 }
 
@@ -258,8 +260,13 @@ void Shape::export_iges(const std::filesystem::path& file) const {
   // the shape's coordinates are in its own unit, and so is the file: no conversion
   Interface_Static::SetCVal("xstep.cascade.unit", u);
   IGESControl_Writer w(u, 1);  // mode 1: BRep (manifold solids with faces and edges), not trimmed surfaces
-  if (!w.AddShape(impl_->shape) || !w.Write(file.c_str()))
-    throw StageError("writing the IGES file '" + file.string() + "' failed");
+  if (!w.AddShape(impl_->shape)) throw StageError("writing the IGES file '" + file.string() + "' failed");
+  IGESData_GlobalSection& header = w.Model()->ChangeGlobalSection();
+  Handle(TCollection_HAsciiString) date = new TCollection_HAsciiString(header_time("%Y%m%d.%H%M%S").c_str());
+  header.SetDate(date);
+  header.SetLastChangeDate(date);
+  header.SetAuthorName(new TCollection_HAsciiString("meshflow"));  // not the login name: same file for every user
+  if (!w.Write(file.c_str())) throw StageError("writing the IGES file '" + file.string() + "' failed");
 }
 
 const std::string& Shape::units() const { return impl_->units; }

@@ -448,14 +448,20 @@ TEST_CASE("an unwritable --out is refused before any stage runs (exit 2)") {
 
 TEST_CASE("a YAML alias bomb (anchors a0..a8, 10 aliases each) is refused within 1 s and 100 MB (exit 2)") {
   Sandbox box;
-  std::string y = "meshflow: 1\nname: bomb\na0: &a0 [x, x, x, x, x, x, x, x, x, x]\n";
-  for (int i = 1; i <= 8; ++i) {
-    std::string prev = "*a" + std::to_string(i - 1);
-    y += "a" + std::to_string(i) + ": &a" + std::to_string(i) + " [" + prev;
-    for (int k = 1; k < 10; ++k) y += ", " + prev;
-    y += "]\n";
-  }
-  y += "stages: {g: {kind: naca_wing}}\n";
+  // 12 lines that expand to 10^9 scalars.
+  const std::string y = R"(meshflow: 1
+name: bomb
+a0: &a0 [x, x, x, x, x, x, x, x, x, x]
+a1: &a1 [*a0, *a0, *a0, *a0, *a0, *a0, *a0, *a0, *a0, *a0]
+a2: &a2 [*a1, *a1, *a1, *a1, *a1, *a1, *a1, *a1, *a1, *a1]
+a3: &a3 [*a2, *a2, *a2, *a2, *a2, *a2, *a2, *a2, *a2, *a2]
+a4: &a4 [*a3, *a3, *a3, *a3, *a3, *a3, *a3, *a3, *a3, *a3]
+a5: &a5 [*a4, *a4, *a4, *a4, *a4, *a4, *a4, *a4, *a4, *a4]
+a6: &a6 [*a5, *a5, *a5, *a5, *a5, *a5, *a5, *a5, *a5, *a5]
+a7: &a7 [*a6, *a6, *a6, *a6, *a6, *a6, *a6, *a6, *a6, *a6]
+a8: &a8 [*a7, *a7, *a7, *a7, *a7, *a7, *a7, *a7, *a7, *a7]
+stages: {g: {kind: naca_wing}}
+)";
   mftest::write_text(box.dir / "bomb.yaml", y);
   for (std::string command : {"dag", "run"}) {
     CAPTURE(command);
