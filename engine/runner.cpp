@@ -306,8 +306,11 @@ void materialise(const Workflow& wf, const RunResult& rr, const Cache& cache, co
     const ArtifactType* type = find_artifact_type(art->type);
     if (previous.contains(od.name) && previous[od.name].value("digest", "") == art->digest &&
         previous[od.name].value("formats", json()) == json(od.formats)) {
-      bool all = true;
-      for (auto& f : previous[od.name]["files"]) all = all && fs::exists(out_dir / f.get<std::string>());
+      bool all = true;  // and none is a hard link (into the store, as older meshflows wrote them)
+      for (auto& f : previous[od.name]["files"]) {
+        struct stat st;
+        all = all && ::stat((out_dir / f.get<std::string>()).c_str(), &st) == 0 && st.st_nlink == 1;
+      }
       if (all) {
         report_outputs[od.name] = previous[od.name];
         continue;
