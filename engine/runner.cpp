@@ -69,8 +69,10 @@ KeyResult make_key(const Workflow& wf, const StageDecl& d, const std::vector<Art
     std::error_code ec;
     if (!fs::is_regular_file(f.path, ec))
       throw WorkflowError(wf.file.string() + ":" + std::to_string(d.line) + ": stage '" + d.name + "', parameter '" +
-                          f.pointer.substr(1) + "': cannot read '" + f.path.string() +
-                          "' (no such file). Relative paths are relative to the workflow file's folder.");
+                          f.pointer.substr(1) + "': cannot read '" + f.path.string() + "' (" +
+                          (fs::is_directory(f.path, ec) ? "it is a folder: give the path of a file in it"
+                                                        : "no such file") +
+                          "). Relative paths are relative to the workflow file's folder.");
     try {
       files[f.pointer] = sha256_file(f.path);
     } catch (const std::exception& e) {

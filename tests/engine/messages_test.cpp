@@ -78,3 +78,11 @@ TEST_CASE("a folder given as the workflow file says so") {
   CHECK(r.code == 2);
   CHECK(r.err.find("is a folder, not a workflow file") != std::string::npos);
 }
+
+TEST_CASE("a folder given where a file parameter wants a file says so") {
+  WorkflowFixture f("meshflow: 1\nname: files\nstages:\n  c: {kind: t_file, with: {path: data}}\n");
+  fs::create_directories(f.dir / "data");
+  auto r = f.run();
+  CHECK(r.code == 1);  // as for a missing file: found when the stage's key is made
+  CHECK(r.err.find("it is a folder: give the path of a file in it") != std::string::npos);
+}
