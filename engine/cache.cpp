@@ -369,6 +369,26 @@ EntryFacts read_entry(const fs::path& file, const std::function<bool(const std::
   }
   return f;
 }
+// Sets the problem of every entry computed from a suspect object. Suspect: a bad or missing
+// object, then (to a fixed point) the outputs of entries that used a suspect input (what was
+// computed from bad bytes is not to be trusted either).
+void mark_computed_from_suspect(std::vector<EntryFacts>& entries, const std::function<bool(const std::string&)>& object_ok) {
+  std::set<std::string> suspect;
+  for (auto& f : entries)
+    for (auto& d : f.inputs)
+      if (!object_ok(d)) suspect.insert(d);
+  for (bool grew = true; grew;) {
+    grew = false;
+    for (auto& f : entries) {
+      if (!f.problem.empty()) continue;
+      auto it = std::find_if(f.inputs.begin(), f.inputs.end(), [&](auto& d) { return suspect.count(d) > 0; });
+      if (it == f.inputs.end()) continue;
+      f.problem = "input object " + *it + (object_ok(*it) ? " was computed from a bad or missing object" : " is missing or corrupt");
+      suspect.insert(f.outputs.begin(), f.outputs.end());
+      grew = true;
+    }
+  }
+}
 }  // namespace
 
 VerifyReport Cache::verify(bool repair) const {
@@ -403,23 +423,7 @@ VerifyReport Cache::verify(bool repair) const {
     entries.push_back(read_entry(e.path(), object_ok));
   }
   std::sort(entries.begin(), entries.end(), [](auto& a, auto& b) { return a.key < b.key; });
-  // Suspect digests: bad or missing objects, then (to a fixed point) the outputs of entries
-  // that used a suspect input (what was computed from bad bytes is not to be trusted either).
-  std::set<std::string> suspect;
-  for (auto& f : entries)
-    for (auto& d : f.inputs)
-      if (!object_ok(d)) suspect.insert(d);
-  for (bool grew = true; grew;) {
-    grew = false;
-    for (auto& f : entries) {
-      if (!f.problem.empty()) continue;
-      auto it = std::find_if(f.inputs.begin(), f.inputs.end(), [&](auto& d) { return suspect.count(d) > 0; });
-      if (it == f.inputs.end()) continue;
-      f.problem = "input object " + *it + (object_ok(*it) ? " was computed from a bad or missing object" : " is missing or corrupt");
-      for (auto& d : f.outputs) grew |= suspect.insert(d).second;
-      grew = true;
-    }
-  }
+  mark_computed_from_suspect(entries, object_ok);
   for (auto& f : entries) {
     if (f.problem.empty()) continue;
     r.problems.push_back("action " + f.key + ": " + f.problem);
