@@ -18,6 +18,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <random>
 #include <set>
 #include <sys/resource.h>
 #include <sys/stat.h>
@@ -526,4 +527,39 @@ TEST_CASE("a 5,000-character workflow name is refused at load (exit 2), before a
   CHECK(r.log.find("at most 100 are allowed") != std::string::npos);
   CHECK(!fs::exists(box.dir / "c/actions"));
   CHECK(r.seconds < 2 * kSlow);
+}
+
+TEST_CASE("SIGKILL while outputs are written: the next run removes the temp files and writes a clean run's outputs") {
+  Sandbox box;
+  Reference ref = reference(box);
+  fs::path cache = private_cache(box);
+  auto debris = [](const fs::path& out) {
+    int n = 0;
+    std::error_code ec;
+    for (auto& e : fs::directory_iterator(out, ec)) n += e.path().filename().string().find(".tmp.") != std::string::npos;
+    return n;
+  };
+  std::mt19937 rng(22);
+  std::uniform_int_distribution<int> extra_us(0, 5000);
+  int left_debris = 0;
+  for (int i = 0; i < 8; ++i) {
+    CAPTURE(i);
+    fs::path out = box.dir / ("out" + std::to_string(i));
+    std::vector<std::string> args = {exe(), "run", box.workflow.string(), "--cache", cache.string(), "--out", out.string()};
+    int pid = mftest::spawn(args, box.dir / "killed.log");
+    // Kill it once it is writing an output file (a temp file appears), 0-5 ms later.
+    auto t0 = Clock::now();
+    while (debris(out) == 0 && Clock::now() - t0 < std::chrono::seconds(60)) std::this_thread::sleep_for(std::chrono::microseconds(500));
+    std::this_thread::sleep_for(std::chrono::microseconds(extra_us(rng)));
+    ::kill(pid, SIGKILL);
+    mftest::wait_exit(pid);
+    left_debris += debris(out) > 0;
+    Run again = box.run(cache, out);
+    INFO(again.log);
+    CHECK(again.code == 0);
+    CHECK(debris(out) == 0);
+    CHECK(tree_differences(ref.out, out) == std::vector<std::string>{});
+  }
+  MESSAGE(left_debris, " of 8 kills left temp files in out/");
+  CHECK(left_debris >= 4);  // the kills did land while outputs were being written
 }
