@@ -8,6 +8,7 @@
 #include <chrono>
 #include <cstring>
 #include <fcntl.h>
+#include <functional>
 #include <map>
 #include <set>
 #include <stdexcept>
@@ -26,6 +27,57 @@ double age_seconds(const fs::path& p) {
   return double(std::time(nullptr) - st.st_mtime);
 }
 void touch(const fs::path& p) { ::utimensat(AT_FDCWD, p.c_str(), nullptr, 0); }
+
+// What a lock file says about its holder.
+struct LockFile {
+  bool exists = false;  // false: vanished while we looked
+  bool readable = false;  // a JSON object with pid and host (we never write anything else)
+  std::string text, host;
+  long pid = 0;
+  double age = 0;  // seconds since the last keep-alive
+};
+
+LockFile read_lock(const fs::path& lock) {
+  LockFile l;
+  try {
+    l.text = read_file(lock);
+  } catch (...) {
+    return l;
+  }
+  l.exists = true;
+  l.age = age_seconds(lock);
+  try {
+    json j = json::parse(l.text);
+    l.pid = j.at("pid").get<long>();
+    l.host = j.at("host").get<std::string>();
+    l.readable = true;
+  } catch (...) {
+  }
+  return l;
+}
+
+// A lock nobody holds: its holder died (this host), or its keep-alive stopped (any host; an
+// empty or garbage lock was never written by a holder, so only its age counts).
+bool abandoned(const LockFile& l, double stale_seconds) {
+  if (l.age > stale_seconds) return true;
+  return l.readable && l.host == hostname() && !process_alive(l.pid);
+}
+
+// Removes `lock` if it still holds `text` (a breaker that raced us may have replaced it): moved
+// aside first, put back when it was not the one judged. True when removed.
+bool break_lock(const fs::path& lock, const std::string& text, const fs::path& tmp_dir) {
+  fs::path aside = tmp_dir / ("lock.broken." + unique_suffix());
+  if (::rename(lock.c_str(), aside.c_str()) != 0) return false;
+  std::string moved;
+  try {
+    moved = read_file(aside);
+  } catch (...) {
+  }
+  bool same = moved == text;
+  if (!same) (void)::link(aside.c_str(), lock.c_str());
+  ::unlink(aside.c_str());
+  return same;
+}
 }  // namespace
 
 CacheLock::~CacheLock() {
@@ -41,7 +93,7 @@ void CacheLock::keep_alive() { touch(file_); }
 
 Cache::Cache(fs::path root) : root_(std::move(root)) {
   std::error_code ec;
-  for (auto d : {"objects", "actions", "last", "locks", "tmp"}) {
+  for (auto d : {"objects", "actions", "last", "locks", "tmp", "quarantine"}) {
     fs::create_directories(root_ / d, ec);
     if (ec)
       throw std::runtime_error("cannot create the cache folder '" + (root_ / d).string() + "': " + ec.message() +
@@ -53,14 +105,54 @@ fs::path Cache::object_path(const std::string& digest) const {
   return root_ / "objects" / digest.substr(0, 2) / digest;
 }
 
+fs::path Cache::quarantine(const fs::path& object, const std::string& digest) const {
+  fs::path q = root_ / "quarantine" / (digest + "." + unique_suffix());
+  std::error_code ec;
+  fs::create_directories(q.parent_path(), ec);
+  if (::rename(object.c_str(), q.c_str()) == 0) return q;
+  if (::unlink(object.c_str()) == 0) return {};  // could not keep it: at least never serve it
+  return {};
+}
+
+bool Cache::verify_object(const std::string& digest, BadObject* bad) const {
+  if (verified_.count(digest)) return true;
+  fs::path p = object_path(digest);
+  std::error_code ec;
+  if (!fs::exists(p, ec)) return false;
+  std::string actual;
+  try {
+    actual = sha256_file(p);
+  } catch (...) {
+  }
+  if (actual == digest) {
+    verified_.insert(digest);
+    return true;
+  }
+  BadObject b{digest, actual, std::uint64_t(fs::file_size(p, ec)), {}};
+  if (ec) b.size = 0;
+  b.quarantined = quarantine(p, digest);
+  if (bad) *bad = b;
+  return false;
+}
+
+void Cache::mark_verified(const std::string& digest) const { verified_.insert(digest); }
+
 std::string Cache::store_object(const fs::path& file) {
   std::string digest = sha256_file(file);
   fs::path target = object_path(digest);
   std::error_code ec;
   fs::create_directories(target.parent_path(), ec);
   if (fs::exists(target)) {
-    fs::remove(file, ec);
-    return digest;
+    std::string present;
+    try {
+      present = sha256_file(target);
+    } catch (...) {
+    }
+    if (present == digest) {
+      fs::remove(file, ec);
+      return digest;
+    }
+    quarantine(target, digest);  // a corrupt copy under this name: replaced by the good bytes
   }
   // fsync the data before it becomes visible under its name.
   int fd = ::open(file.c_str(), O_RDONLY | O_CLOEXEC);
@@ -135,31 +227,16 @@ std::unique_ptr<CacheLock> Cache::try_lock(const std::string& key, std::string* 
     if (rc == 0) return std::make_unique<CacheLock>(lock, nonce);
     if (errno != EEXIST) throw std::runtime_error("cannot create lock '" + lock.string() + "': " + std::strerror(errno));
     // Someone holds it: is the holder alive?
-    json other;
-    std::string text;
-    try {
-      text = read_file(lock);
-      other = json::parse(text);
-    } catch (...) {
-      continue;  // vanished or being replaced: try again
-    }
-    long pid = other.value("pid", 0L);
-    std::string host = other.value("host", "");
-    bool dead = (host == hostname() && !process_alive(pid)) || age_seconds(lock) > stale_seconds;
-    if (!dead) {
-      if (holder) *holder = "pid " + std::to_string(pid) + " on host " + host;
+    LockFile other = read_lock(lock);
+    if (!other.exists) continue;  // released meanwhile: try again
+    if (!abandoned(other, stale_seconds)) {
+      if (holder)
+        *holder = other.readable ? "pid " + std::to_string(other.pid) + " on host " + other.host
+                                 : "an unreadable lock file " + lock.string() + " (broken when its keep-alive is " +
+                                       std::to_string(int(stale_seconds)) + " s old; now " + std::to_string(int(other.age)) + " s)";
       return nullptr;
     }
-    // Break the stale lock: move it aside, and put it back if it was not the one we judged.
-    fs::path aside = tmp_dir() / ("lock.broken." + unique_suffix());
-    if (::rename(lock.c_str(), aside.c_str()) != 0) continue;
-    std::string moved;
-    try {
-      moved = read_file(aside);
-    } catch (...) {
-    }
-    if (moved != text) ::link(aside.c_str(), lock.c_str());
-    ::unlink(aside.c_str());
+    break_lock(lock, other.text, tmp_dir());
   }
   if (holder) *holder = "a process that keeps replacing the lock";
   return nullptr;
@@ -169,6 +246,17 @@ fs::path Cache::make_scratch() const {
   fs::path p = tmp_dir() / ("run." + unique_suffix());
   fs::create_directories(p);
   return p;
+}
+
+int Cache::clean_stale_locks(double stale_seconds) const {
+  int removed = 0;
+  std::error_code ec;
+  for (auto& e : fs::directory_iterator(root_ / "locks", ec)) {
+    if (e.path().extension() != ".lock") continue;
+    LockFile l = read_lock(e.path());
+    if (l.exists && abandoned(l, stale_seconds) && break_lock(e.path(), l.text, tmp_dir())) ++removed;
+  }
+  return removed;
 }
 
 int Cache::clean_stale_tmp() const {
@@ -193,7 +281,12 @@ int Cache::clean_stale_tmp() const {
 GcReport Cache::gc(const GcOptions& opt) const {
   GcReport r;
   r.tmp_removed = clean_stale_tmp();
+  r.locks_removed = clean_stale_locks();
   std::error_code ec;
+  for (auto& e : fs::directory_iterator(root_ / "quarantine", ec))
+    if (age_seconds(e.path()) >= opt.grace_seconds && fs::remove_all(e.path(), ec) > 0) ++r.quarantine_removed;
+  // What an entry keeps alive: its outputs and the inputs it was computed from (verify checks
+  // those, and drops an entry whose inputs are gone: its provenance can no longer be checked).
   struct Action {
     fs::path file;
     double age;
@@ -205,6 +298,7 @@ GcReport Cache::gc(const GcOptions& opt) const {
     try {
       json j = json::parse(read_file(e.path()));
       for (auto& o : j.at("outputs")) a.digests.push_back(o.at("digest"));
+      for (auto& in : j.at("preimage").value("inputs", json::array())) a.digests.push_back(in.at("digest"));
     } catch (...) {
       fs::remove(e.path(), ec);  // unreadable entry: worthless
       ++r.actions_removed;
@@ -248,6 +342,55 @@ GcReport Cache::gc(const GcOptions& opt) const {
   return r;
 }
 
+namespace {
+// One action entry as verify sees it.
+struct EntryFacts {
+  fs::path file;
+  std::string key;
+  std::vector<std::string> inputs, outputs;  // digests
+  std::string problem;  // set when the entry itself is unusable
+};
+
+EntryFacts read_entry(const fs::path& file, const std::function<bool(const std::string&)>& object_ok) {
+  EntryFacts f{file, file.stem().string(), {}, {}, {}};
+  try {
+    json j = json::parse(read_file(file));
+    if (j.at("key") != f.key) throw std::runtime_error("key field differs from the file name");
+    if (sha256_hex(canonical_json(j.at("preimage"))) != f.key)
+      throw std::runtime_error("key is not the SHA-256 of the stored preimage");
+    for (auto& in : j.at("preimage").value("inputs", json::array())) f.inputs.push_back(in.at("digest"));
+    for (auto& o : j.at("outputs")) {
+      std::string d = o.at("digest");
+      f.outputs.push_back(d);
+      if (!object_ok(d)) throw std::runtime_error("output '" + o.value("name", "") + "' object " + d + " is missing or corrupt");
+    }
+  } catch (const std::exception& ex) {
+    f.problem = ex.what();
+  }
+  return f;
+}
+// Sets the problem of every entry computed from a suspect object. Suspect: a bad or missing
+// object, then (to a fixed point) the outputs of entries that used a suspect input (what was
+// computed from bad bytes is not to be trusted either).
+void mark_computed_from_suspect(std::vector<EntryFacts>& entries, const std::function<bool(const std::string&)>& object_ok) {
+  std::set<std::string> suspect;
+  for (auto& f : entries)
+    for (auto& d : f.inputs)
+      if (!object_ok(d)) suspect.insert(d);
+  for (bool grew = true; grew;) {
+    grew = false;
+    for (auto& f : entries) {
+      if (!f.problem.empty()) continue;
+      auto it = std::find_if(f.inputs.begin(), f.inputs.end(), [&](auto& d) { return suspect.count(d) > 0; });
+      if (it == f.inputs.end()) continue;
+      f.problem = "input object " + *it + (object_ok(*it) ? " was computed from a bad or missing object" : " is missing or corrupt");
+      suspect.insert(f.outputs.begin(), f.outputs.end());
+      grew = true;
+    }
+  }
+}
+}  // namespace
+
 VerifyReport Cache::verify(bool repair) const {
   VerifyReport r;
   std::error_code ec;
@@ -256,13 +399,20 @@ VerifyReport Cache::verify(bool repair) const {
     if (!e.is_regular_file()) continue;
     ++r.objects;
     std::string name = e.path().filename().string();
-    std::string actual = sha256_file(e.path());
+    std::string actual;
+    try {
+      actual = sha256_file(e.path());
+    } catch (...) {
+      actual = "(unreadable)";
+    }
     if (actual != name) {
       r.problems.push_back("object " + name + " has content " + actual);
       bad.insert(name);
-      if (repair) fs::remove(e.path(), ec);
+      if (repair) quarantine(e.path(), name);
     }
   }
+  auto object_ok = [&](const std::string& d) { return !bad.count(d) && fs::exists(object_path(d)); };
+  std::vector<EntryFacts> entries;
   for (auto& e : fs::directory_iterator(root_ / "actions", ec)) {
     if (e.path().extension() != ".json") {
       r.problems.push_back("stray file in actions/: " + e.path().filename().string());
@@ -270,23 +420,14 @@ VerifyReport Cache::verify(bool repair) const {
       continue;
     }
     ++r.actions;
-    std::string key = e.path().stem().string();
-    bool ok = true;
-    try {
-      json j = json::parse(read_file(e.path()));
-      if (j.at("key") != key) throw std::runtime_error("key field differs from the file name");
-      if (sha256_hex(canonical_json(j.at("preimage"))) != key)
-        throw std::runtime_error("key is not the SHA-256 of the stored preimage");
-      for (auto& o : j.at("outputs")) {
-        std::string d = o.at("digest");
-        if (bad.count(d) || !fs::exists(object_path(d), ec))
-          throw std::runtime_error("output '" + o.value("name", "") + "' object " + d + " is missing or corrupt");
-      }
-    } catch (const std::exception& ex) {
-      ok = false;
-      r.problems.push_back("action " + key + ": " + ex.what());
-    }
-    if (!ok && repair) fs::remove(e.path(), ec);
+    entries.push_back(read_entry(e.path(), object_ok));
+  }
+  std::sort(entries.begin(), entries.end(), [](auto& a, auto& b) { return a.key < b.key; });
+  mark_computed_from_suspect(entries, object_ok);
+  for (auto& f : entries) {
+    if (f.problem.empty()) continue;
+    r.problems.push_back("action " + f.key + ": " + f.problem);
+    if (repair) fs::remove(f.file, ec);
   }
   return r;
 }

@@ -11,6 +11,7 @@
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
 #include <cstdlib>
 #include <iomanip>
 #include <iostream>
@@ -110,6 +111,10 @@ int cli_main(int argc, char** argv) {
   if (argc > 1) {
     if (const Command* c = find_command(argv[1])) {
       std::vector<std::string> args(argv + 2, argv + argc);
+      if (std::find(args.begin(), args.end(), "--help") != args.end() || std::find(args.begin(), args.end(), "-h") != args.end()) {
+        std::cout << "usage: meshflow " << c->usage << "\n  " << c->summary << "\n";
+        return 0;
+      }
       try {
         return c->run(args);
       } catch (const std::exception& e) {
@@ -121,6 +126,7 @@ int cli_main(int argc, char** argv) {
 
   CLI::App app{"meshflow: valid high-order curvilinear hybrid meshes for CFD, from a workflow file"};
   app.require_subcommand(1);
+  app.set_version_flag("--version", std::string("meshflow ") + MESHFLOW_VERSION);
   app.footer(commands_footer() +
              "\n\nExit codes: 0 success; 1 a stage failed or `check` found differences; 2 bad input (workflow, "
              "arguments); 3 a mesh breaks the contract (invalid, degenerate, non-conforming or untagged elements, CAD faces "
@@ -161,7 +167,7 @@ int cli_main(int argc, char** argv) {
   add_common(check, true);
   auto* golden = app.add_subcommand("golden", "run, then write the golden summary (--update; refused when CI=true)");
   add_common(golden, true);
-  golden->add_flag("--update", update, "rewrite golden/<name>/summary.json")->required();
+  golden->add_flag("--update", update, "rewrite golden/<name>/summary.json (needed: golden does nothing else)");
   auto* clean = app.add_subcommand("clean", "delete the workflow's cache folder");
   add_common(clean, false);
   auto* gc = app.add_subcommand("gc", "trim the cache by size and age; --verify re-hashes every object");
@@ -170,7 +176,8 @@ int cli_main(int argc, char** argv) {
   gc->add_option("--max-age-days", max_age_days, "drop results unused for longer than this");
   gc->add_option("--grace", grace, "never delete unreferenced objects younger than this many seconds (a run may be storing them)");
   gc->add_flag("--verify", verify, "re-hash every object and check every action entry");
-  gc->add_flag("--repair", repair, "with --verify: remove what is corrupt");
+  gc->add_flag("--repair", repair, "with --verify: remove what is corrupt, and the entries computed from it");
+  gc->add_option("--out", out_dir, "output folder whose stale temp files to remove (default: out/<workflow name>/)");
   auto* kinds = app.add_subcommand("kinds", "list stage kinds with their parameters, and artifact types with formats");
   std::string kind_name;
   kinds->add_option("kind", kind_name, "only this kind");
@@ -231,6 +238,12 @@ int cli_main(int argc, char** argv) {
     return 0;
   }
 
+  if (golden->parsed() && !update) {
+    std::cerr << "error: `meshflow golden` rewrites the golden summary only when asked: run `meshflow golden "
+              << workflow_file << " --update`.\n";
+    return kBadInput;
+  }
+
   Workflow wf;
   try {
     wf = load_workflow(workflow_file, sets);
@@ -283,7 +296,10 @@ int cli_main(int argc, char** argv) {
       return 0;
     }
     if (gc->parsed()) {
+      fs::path out = out_dir.empty() ? fs::current_path() / "out" / wf.name : fs::path(out_dir);
+      int out_tmp = remove_stale_tmp_files(out);  // left by runs killed while writing outputs
       if (verify) {
+        cache.clean_stale_locks();
         auto r = cache.verify(repair);
         for (auto& p : r.problems) std::cout << (repair ? "removed: " : "problem: ") << p << "\n";
         std::cout << "verified " << r.objects << " objects and " << r.actions << " action entries: "
@@ -296,7 +312,9 @@ int cli_main(int argc, char** argv) {
       o.grace_seconds = grace;
       auto r = cache.gc(o);
       std::cout << "gc: removed " << r.actions_removed << " action entries, " << r.objects_removed << " objects, "
-                << r.tmp_removed << " temp entries; objects " << r.bytes_before << " -> " << r.bytes_after << " bytes\n";
+                << r.tmp_removed << " temp entries, " << r.locks_removed << " stale locks, " << r.quarantine_removed
+                << " quarantined objects, " << out_tmp << " stale temp files in " << out.string() << "; objects "
+                << r.bytes_before << " -> " << r.bytes_after << " bytes\n";
       return 0;
     }
     if (golden->parsed() && std::getenv("CI") && std::string(std::getenv("CI")) == "true") {

@@ -9,8 +9,12 @@
 #include <random>
 #include <signal.h>
 #include <sstream>
+#include <vector>
 #include <stdexcept>
+#include <linux/fs.h>
+#include <sys/ioctl.h>
 #include <sys/stat.h>
+#include <ctime>
 #include <unistd.h>
 
 namespace fs = std::filesystem;
@@ -90,6 +94,102 @@ std::string read_file(const fs::path& file) {
   std::ostringstream s;
   s << in.rdbuf();
   return s.str();
+}
+
+namespace {
+// Copies the rest of `in` to `out` (copy_file_range, then read/write where it is refused).
+void copy_bytes(int in, int out, const fs::path& source, const fs::path& target) {
+  while (true) {
+    ssize_t n = ::copy_file_range(in, nullptr, out, nullptr, 1 << 30, 0);
+    if (n == 0) return;
+    if (n > 0) continue;
+    if (errno == EINTR) continue;
+    if (errno != EXDEV && errno != ENOSYS && errno != EINVAL && errno != EOPNOTSUPP)
+      throw std::runtime_error("cannot copy '" + source.string() + "' to '" + target.string() + "': " + std::strerror(errno));
+    break;
+  }
+  std::vector<char> buf(1 << 20);
+  while (true) {
+    ssize_t n = ::read(in, buf.data(), buf.size());
+    if (n == 0) return;
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      throw std::runtime_error("cannot read '" + source.string() + "': " + std::strerror(errno));
+    }
+    for (ssize_t done = 0; done < n;) {
+      ssize_t w = ::write(out, buf.data() + done, size_t(n - done));
+      if (w < 0 && errno == EINTR) continue;
+      if (w < 0) throw std::runtime_error("cannot write '" + target.string() + "': " + std::strerror(errno));
+      done += w;
+    }
+  }
+}
+}  // namespace
+
+void clone_or_copy(const fs::path& source, const fs::path& target) {
+  int in = ::open(source.c_str(), O_RDONLY | O_CLOEXEC);
+  if (in < 0) throw std::runtime_error("cannot read '" + source.string() + "': " + std::strerror(errno));
+  int out = ::open(target.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
+  if (out < 0) {
+    int e = errno;
+    ::close(in);
+    throw std::runtime_error("cannot create '" + target.string() + "': " + std::strerror(e));
+  }
+  try {
+    if (::ioctl(out, FICLONE, in) != 0) copy_bytes(in, out, source, target);
+    ::fchmod(out, 0644);
+  } catch (...) {
+    ::close(in);
+    ::close(out);
+    ::unlink(target.c_str());
+    throw;
+  }
+  ::close(in);
+  if (::close(out) != 0) {
+    int e = errno;
+    ::unlink(target.c_str());
+    throw std::runtime_error("cannot write '" + target.string() + "': " + std::strerror(e));
+  }
+}
+
+int remove_stale_tmp_files(const fs::path& dir) {
+  int removed = 0;
+  std::error_code ec;
+  const std::string me = sanitized_hostname();
+  for (auto& e : fs::directory_iterator(dir, ec)) {
+    std::string name = e.path().filename().string();
+    auto at = name.find(".tmp.");
+    if (at == std::string::npos || !e.is_regular_file(ec)) continue;
+    std::string host;
+    long pid = 0;
+    if (!parse_owner(name.substr(at + 1), &host, &pid)) continue;  // not one of ours
+    struct stat st;
+    bool old = ::stat(e.path().c_str(), &st) == 0 && std::time(nullptr) - st.st_mtime > 86400;
+    if ((host == me && !process_alive(pid)) || old) removed += fs::remove(e.path(), ec) ? 1 : 0;
+  }
+  return removed;
+}
+
+bool writable_dir(const fs::path& dir, std::string* why) {
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  if (ec) {
+    *why = "cannot create it: " + ec.message();
+    return false;
+  }
+  if (!fs::is_directory(dir, ec)) {
+    *why = "it is not a folder";
+    return false;
+  }
+  fs::path probe = dir / (".write-probe.tmp." + unique_suffix());
+  int fd = ::open(probe.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
+  if (fd < 0) {
+    *why = std::string("cannot create a file in it: ") + std::strerror(errno);
+    return false;
+  }
+  ::close(fd);
+  ::unlink(probe.c_str());
+  return true;
 }
 
 std::string hostname() {

@@ -16,6 +16,16 @@ namespace meshflow {
 void atomic_write(const std::filesystem::path& target, std::string_view bytes,
                   const std::filesystem::path& tmp_dir = {}, bool durable = true);
 std::string read_file(const std::filesystem::path& file);  // throws naming the file
+// Creates `target` (which must not exist) as an independent copy of `source`: a reflink
+// (FICLONE: shared blocks, copy on write) where the filesystem has them, else a byte copy.
+// Never a hard link: writing to the copy cannot change the source. Mode 0644. Throws.
+void clone_or_copy(const std::filesystem::path& source, const std::filesystem::path& target);
+// Removes the temp files ("*.tmp.<host>_<pid>_...") that dead processes of this host left in
+// `dir` (not recursive), and any older than a day. Returns how many.
+int remove_stale_tmp_files(const std::filesystem::path& dir);
+// True when `dir` exists or can be created and a file can be created in it; else false with
+// the reason in `why`.
+bool writable_dir(const std::filesystem::path& dir, std::string* why);
 std::string hostname();
 bool process_alive(long pid);  // on this host
 // A name unique to this process and call: <host>_<pid>_<counter>_<random>, host sanitised to

@@ -69,8 +69,10 @@ KeyResult make_key(const Workflow& wf, const StageDecl& d, const std::vector<Art
     std::error_code ec;
     if (!fs::is_regular_file(f.path, ec))
       throw WorkflowError(wf.file.string() + ":" + std::to_string(d.line) + ": stage '" + d.name + "', parameter '" +
-                          f.pointer.substr(1) + "': cannot read '" + f.path.string() +
-                          "' (no such file). Relative paths are relative to the workflow file's folder.");
+                          f.pointer.substr(1) + "': cannot read '" + f.path.string() + "' (" +
+                          (fs::is_directory(f.path, ec) ? "it is a folder: give the path of a file in it"
+                                                        : "no such file") +
+                          "). Relative paths are relative to the workflow file's folder.");
     try {
       files[f.pointer] = sha256_file(f.path);
     } catch (const std::exception& e) {
@@ -236,10 +238,64 @@ std::string fmt(double v, int prec) {
   return s.str();
 }
 
+// The artifact an output names: the stage's `artifact`, else its first. nullptr when the stage
+// produced nothing (failed or skipped).
+const Artifact* output_artifact(const Workflow& wf, const RunResult& rr, const OutputDecl& od) {
+  auto it = std::find_if(rr.stages.begin(), rr.stages.end(), [&](auto& s) { return s.name == od.from; });
+  if (it == rr.stages.end() || it->outputs.empty()) return nullptr;
+  if (od.artifact.empty()) return &it->outputs.front();
+  for (auto& a : it->outputs)
+    if (a.name == od.artifact) return &a;
+  throw WorkflowError(wf.file.string() + ": output '" + od.name + "': stage '" + od.from + "' has no artifact '" +
+                      od.artifact + "'.");
+}
+
+// The warning (or error) naming an object whose bytes do not match its digest.
+std::string bad_object_text(const BadObject& b, const std::string& stage, const std::string& output) {
+  std::string s = "cache object " + b.digest + " (output '" + output + "' of stage '" + stage + "', " +
+                  std::to_string(b.size) + " bytes) does not match its digest";
+  s += b.actual.empty() ? " (unreadable)" : " (its bytes hash to " + b.actual.substr(0, 12) + "...)";
+  s += b.quarantined.empty() ? "; removed" : "; moved to " + b.quarantined.string();
+  return s;
+}
+
+// Verify on read before materialising: throws naming the object when its bytes are not those
+// its digest names (it is quarantined: the next run recomputes the stage that made it).
+void verify_for_output(const Cache& cache, const Artifact& art) {
+  BadObject bad;
+  if (cache.verify_object(art.digest, &bad)) return;
+  if (bad.digest.empty())
+    throw std::runtime_error("cache object " + art.digest + " (output '" + art.name + "' of stage '" + art.stage +
+                             "') vanished before it was written out: run again to recompute it");
+  throw std::runtime_error(bad_object_text(bad, art.stage, art.name) + ". Run again: the stage is recomputed.");
+}
+
+// Writes one output file atomically: produced under a temp name in out_dir, then renamed.
+void write_output_file(const fs::path& target, const std::function<void(const fs::path&)>& produce) {
+  fs::path tmp = target.parent_path() / ("." + target.filename().string() + ".tmp." + unique_suffix());
+  try {
+    produce(tmp);
+    fs::rename(tmp, target);
+  } catch (...) {
+    std::error_code ec;
+    fs::remove(tmp, ec);
+    throw;
+  }
+}
+
+// An unformatted output is an independent copy of the object (reflink or bytes, never a hard
+// link), checked against the digest after copying: what lands in out/ is what the digest names.
+void copy_object_out(const Artifact& art, const fs::path& tmp) {
+  clone_or_copy(art.path, tmp);
+  if (sha256_file(tmp) != art.digest)
+    throw std::runtime_error("copying cache object " + art.digest + " (output '" + art.name + "' of stage '" + art.stage +
+                             "') to " + tmp.string() + " gave different bytes: the object changed while it was copied. Run again.");
+}
+
 // Writes the workflow's outputs into out_dir. An output whose artifact digest and formats are
 // those of the previous report.json there, with all its files present, is not written again
 // (exporting a large mesh would dominate a no-change re-run).
-void materialise(const Workflow& wf, const RunResult& rr, const fs::path& out_dir, json& report_outputs) {
+void materialise(const Workflow& wf, const RunResult& rr, const Cache& cache, const fs::path& out_dir, json& report_outputs) {
   json previous;
   try {
     previous = json::parse(read_file(out_dir / "report.json")).at("outputs");
@@ -247,54 +303,28 @@ void materialise(const Workflow& wf, const RunResult& rr, const fs::path& out_di
     previous = json::object();
   }
   for (auto& od : wf.outputs) {
-    auto it = std::find_if(rr.stages.begin(), rr.stages.end(), [&](auto& s) { return s.name == od.from; });
-    if (it == rr.stages.end() || it->outputs.empty()) continue;
-    const Artifact* art = &it->outputs.front();
-    if (!od.artifact.empty()) {
-      art = nullptr;
-      for (auto& a : it->outputs)
-        if (a.name == od.artifact) art = &a;
-      if (!art)
-        throw WorkflowError(wf.file.string() + ": output '" + od.name + "': stage '" + od.from + "' has no artifact '" +
-                            od.artifact + "'.");
-    }
+    const Artifact* art = output_artifact(wf, rr, od);
+    if (!art) continue;
     const ArtifactType* type = find_artifact_type(art->type);
     if (previous.contains(od.name) && previous[od.name].value("digest", "") == art->digest &&
         previous[od.name].value("formats", json()) == json(od.formats)) {
-      bool all = true;
-      for (auto& f : previous[od.name]["files"]) all = all && fs::exists(out_dir / f.get<std::string>());
+      bool all = true;  // and none is a hard link (into the store, as older meshflows wrote them)
+      for (auto& f : previous[od.name]["files"]) {
+        struct stat st;
+        all = all && ::stat((out_dir / f.get<std::string>()).c_str(), &st) == 0 && st.st_nlink == 1;
+      }
       if (all) {
         report_outputs[od.name] = previous[od.name];
         continue;
       }
     }
+    verify_for_output(cache, *art);
     json files = json::array();
     auto write_one = [&](const std::string& ext, const std::function<void(const fs::path&)>& produce) {
-      fs::path target = out_dir / (od.name + ext);
-      fs::path tmp = out_dir / ("." + od.name + ext + ".tmp." + unique_suffix());
-      try {
-        produce(tmp);
-        fs::rename(tmp, target);
-        // rename(2) of a hard link onto another link of the same file does nothing and leaves
-        // the source: an unformatted output re-linked to the cache object it already links to
-        // (report.json gone or from another workflow of the same name) would leave its
-        // ".NAME.tmp.*" beside it
-        std::error_code ec;
-        if (fs::exists(tmp, ec)) fs::remove(tmp, ec);
-      } catch (...) {
-        std::error_code ec;
-        fs::remove(tmp, ec);
-        throw;
-      }
-      files.push_back(target.filename().string());
+      write_output_file(out_dir / (od.name + ext), produce);
+      files.push_back(od.name + ext);
     };
-    if (od.formats.empty()) {
-      write_one(type ? type->extension : "", [&](const fs::path& tmp) {
-        std::error_code ec;
-        fs::create_hard_link(art->path, tmp, ec);
-        if (ec) fs::copy_file(art->path, tmp);
-      });
-    }
+    if (od.formats.empty()) write_one(type ? type->extension : "", [&](const fs::path& tmp) { copy_object_out(*art, tmp); });
     for (auto& f : od.formats) {
       if (!type || !type->formats.count(f)) {
         std::string known;
@@ -371,6 +401,28 @@ std::string mesh_line(const std::string& stage, const json& m) {
   return s.str();
 }
 
+// Verify on read of a cache hit: every object the entry names hashes to its digest. Each bad
+// one is quarantined, named in a warning and listed in `quarantined`; then the entry is not
+// used and its stage is recomputed (so every stage downstream reads the right bytes).
+bool entry_intact(const Cache& cache, const std::string& stage, const json& entry, std::ostream& err, json& quarantined) {
+  bool ok = true;
+  for (auto& o : entry["outputs"]) {
+    BadObject bad;
+    std::string digest = o.value("digest", "");
+    if (cache.verify_object(digest, &bad)) continue;
+    ok = false;
+    if (bad.digest.empty()) continue;  // vanished meanwhile: a plain miss
+    std::string output = o.value("name", "");
+    err << "warning: " << bad_object_text(bad, stage, output) << "; recomputing stage '" << stage << "'.\n";
+    quarantined.push_back({{"stage", stage},
+                           {"output", output},
+                           {"digest", bad.digest},
+                           {"actual", bad.actual},
+                           {"moved_to", bad.quarantined.string()}});
+  }
+  return ok;
+}
+
 }  // namespace
 
 RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
@@ -382,10 +434,21 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
   const int stage_threads = std::max(1, threads / jobs);
   const bool tty = (&out == &std::cout) && ::isatty(1);
 
+  RunResult rr;
+  // The output folder is checked before any stage runs (not after an hour of meshing).
+  if (opt.materialise) {
+    rr.out_dir = opt.out_dir.empty() ? fs::current_path() / "out" / wf.name : fs::absolute(opt.out_dir);
+    std::string why;
+    if (!writable_dir(rr.out_dir, &why))
+      throw WorkflowError("the output folder " + rr.out_dir.string() + " is not writable: " + why +
+                          ". Choose another with --out DIR; no stage was run.");
+    remove_stale_tmp_files(rr.out_dir);  // left by a run killed while writing outputs
+  }
   Cache cache(resolve_cache_dir(wf, opt.cache_dir));
   cache.clean_stale_tmp();
+  cache.clean_stale_locks();
+  json quarantined = json::array();
 
-  RunResult rr;
   std::map<std::string, StageResult> results;
   for (auto& d : wf.stages) {
     results[d.name].name = d.name;
@@ -514,7 +577,13 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
         cache.record_last(wf.name, d.name, {{"key", key.key}, {"preimage", key.preimage}});
         finish(i, "cached");
       };
-      if (auto entry = cache.load_action(key.key)) {
+      // Verify on read: a hit whose objects do not match their digests is a miss (recomputed).
+      auto verified_entry = [&]() -> std::optional<json> {
+        auto entry = cache.load_action(key.key);
+        if (entry && !entry_intact(cache, d.name, *entry, err, quarantined)) entry.reset();
+        return entry;
+      };
+      if (auto entry = verified_entry()) {
         hit(*entry);
         continue;
       }
@@ -527,7 +596,7 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
         waiting_on[i] = holder;
         continue;
       }
-      if (auto entry = cache.load_action(key.key)) {  // finished while we were not looking
+      if (auto entry = verified_entry()) {  // finished while we were not looking
         hit(*entry);
         continue;
       }
@@ -609,6 +678,7 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
           cache.write_action(r.key.key, entry);  // last: its presence means the run is complete
           cache.record_last(wf.name, d.name, {{"key", r.key.key}, {"preimage", r.key.preimage}});
           res.outputs = artifacts_of_entry(cache, d.name, entry);
+          for (auto& a : res.outputs) cache.mark_verified(a.digest);  // hashed as they were stored
           res.stats = result["stats"];
           status = "ran";
         } catch (const std::exception& e) {
@@ -669,6 +739,7 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
   rr.report = {{"workflow", wf.name}, {"file", wf.file.string()}, {"ok", rr.ok},          {"invalid", rr.invalid},
                {"problems", all_problems}, {"stages", stages}, {"seconds", secs(t0)}, {"outputs", json::object()}};
   if (rr.invalid && opt.allow_invalid) rr.report["invalid_accepted"] = true;
+  if (!quarantined.empty()) rr.report["quarantined"] = quarantined;
 
   // The summary's first line says when the mesh breaks the contract, and where.
   if (rr.invalid) {
@@ -688,11 +759,10 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
     if (r.stats.contains("mesh") && r.stats["mesh"].is_object()) out << mesh_line(r.name, r.stats["mesh"]) << "\n";
 
   if (opt.materialise) {
-    rr.out_dir = opt.out_dir.empty() ? fs::current_path() / "out" / wf.name : fs::absolute(opt.out_dir);
     try {
       fs::create_directories(rr.out_dir);
       // An invalid mesh is written too, so that the user can look at it; report.json marks it.
-      if (!any_failed) materialise(wf, rr, rr.out_dir, rr.report["outputs"]);
+      if (!any_failed) materialise(wf, rr, cache, rr.out_dir, rr.report["outputs"]);
       for (auto& o : wf.outputs)
         if (results[o.from].status == "invalid" && rr.report["outputs"].contains(o.name))
           rr.report["outputs"][o.name]["invalid"] = true;

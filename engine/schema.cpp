@@ -1,6 +1,7 @@
 #include "engine/schema.hpp"
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <regex>
 #include <set>
@@ -189,8 +190,16 @@ std::vector<SchemaIssue> validate_schema(json& v, const json& s, const std::map<
         const json& ap = s["additionalProperties"];
         if (ap.is_boolean() && !ap.get<bool>()) {
           std::string known;
-          for (auto& [pk, pv] : props.items()) known += (known.empty() ? "" : ", ") + pk;
-          out.push_back({p, "is not a known parameter" + (known.empty() ? std::string() : " (known: " + known + ")"), ""});
+          std::vector<std::string> names;
+          for (auto& [pk, pv] : props.items()) {
+            known += (known.empty() ? "" : ", ") + pk;
+            names.push_back(pk);
+          }
+          std::string near = nearest_name(k, names);
+          std::string msg = "is not a known parameter";
+          if (!near.empty()) msg += "; did you mean '" + near + "'?";
+          if (!known.empty()) msg += " (known: " + known + ")";
+          out.push_back({p, msg, "", near});
         } else if (ap.is_object()) {
           auto sub = validate_schema(val, ap, raw, p);
           out.insert(out.end(), sub.begin(), sub.end());
@@ -199,6 +208,36 @@ std::vector<SchemaIssue> validate_schema(json& v, const json& s, const std::map<
     }
   }
   return out;
+}
+
+std::string nearest_name(const std::string& word, const std::vector<std::string>& known) {
+  auto lower = [](std::string t) {
+    for (auto& c : t) c = char(std::tolower(static_cast<unsigned char>(c)));
+    return t;
+  };
+  const std::string w = lower(word);
+  std::string best;
+  size_t best_d = std::max<size_t>(2, w.size() / 3) + 1;
+  for (auto& k : known) {
+    const std::string c = lower(k);
+    // Levenshtein distance, one row at a time.
+    std::vector<size_t> row(c.size() + 1);
+    for (size_t j = 0; j <= c.size(); ++j) row[j] = j;
+    for (size_t i = 1; i <= w.size(); ++i) {
+      size_t diag = row[0];
+      row[0] = i;
+      for (size_t j = 1; j <= c.size(); ++j) {
+        size_t up = row[j];
+        row[j] = std::min({row[j] + 1, row[j - 1] + 1, diag + (w[i - 1] == c[j - 1] ? 0 : 1)});
+        diag = up;
+      }
+    }
+    if (row[c.size()] < best_d) {
+      best_d = row[c.size()];
+      best = k;
+    }
+  }
+  return best;
 }
 
 std::vector<std::string> file_parameters(const json& v, const json& s, const std::string& ptr) {

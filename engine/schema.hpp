@@ -23,7 +23,12 @@ struct SchemaIssue {
   std::string pointer;  // JSON pointer into the instance, e.g. "/layers"
   std::string message;  // "is 0, below the minimum 1"
   std::string description;  // the schema's description of that value, if any
+  std::string suggestion;   // for an unknown name: the nearest known one ("" if none is close)
 };
+
+// The known name nearest to `word` ("did you mean ...?"): smallest edit distance (ignoring
+// case), within a third of the word's length (at least 2); "" when none is that close.
+std::string nearest_name(const std::string& word, const std::vector<std::string>& known);
 
 // Validates `instance` in place (defaults filled, plain scalars coerced). `raw_plain` maps
 // JSON pointers of values that were plain (unquoted) YAML scalars to their source text.

@@ -27,6 +27,7 @@ struct Mark {
 
 struct Source {
   std::string file;
+  std::size_t nodes = 0;  // YAML nodes converted so far (aliases count each time they are used)
   std::map<std::string, Mark> marks;       // JSON pointer -> where it was written
   std::map<std::string, std::string> raw;  // pointer -> text of plain scalars
 
@@ -87,11 +88,21 @@ json scalar_to_json(const YAML::Node& n, bool* plain) {
   return t;
 }
 
+// YAML's spellings of not-a-number (a plain scalar).
+bool is_nan_text(const std::string& t) { return t == ".nan" || t == ".NaN" || t == ".NAN"; }
+
 json yaml_to_json(const YAML::Node& n, const std::string& ptr, Source& src) {
+  if (++src.nodes > kMaxYamlNodes)
+    throw WorkflowError(src.file + ":" + std::to_string(n.Mark().line + 1) + ": the workflow expands to more than " +
+                        std::to_string(kMaxYamlNodes) +
+                        " YAML nodes (each alias `*name` copies its anchor `&name`, so nested aliases multiply). A "
+                        "workflow needs a few hundred: remove the nested aliases.");
   src.marks[ptr] = {n.Mark().line + 1, n.Mark().column + 1};
   switch (n.Type()) {
     case YAML::NodeType::Null: return nullptr;
     case YAML::NodeType::Scalar: {
+      if (n.Tag() != "!" && is_nan_text(n.Scalar()))
+        src.fail(ptr, "'" + dotted(ptr) + "' is " + n.Scalar() + " (not a number): give a finite number.");
       bool plain = false;
       json v = scalar_to_json(n, &plain);
       if (plain) src.raw[ptr] = n.Scalar();
@@ -149,14 +160,32 @@ std::vector<std::string> Workflow::descendants(const std::string& stage) const {
   return out;
 }
 
+namespace {
+std::string too_large(const fs::path& file, std::uintmax_t bytes) {
+  return file.string() + ": the workflow file is " + std::to_string(bytes) + " bytes; at most " +
+         std::to_string(kMaxWorkflowBytes) +
+         " are read (a workflow is a few kB; put large data in files that stages read, e.g. `file:`).";
+}
+}  // namespace
+
 Workflow load_workflow(const fs::path& file, const std::vector<std::string>& overrides) {
+  std::error_code ec;
+  if (fs::is_directory(file, ec))
+    throw WorkflowError(file.string() + ": is a folder, not a workflow file. Give the path of a .yaml file.");
   std::ifstream in(file, std::ios::binary);
   if (!in)
     throw WorkflowError(file.string() + ": cannot read the workflow file (" +
                         (fs::exists(file) ? "permission denied" : "no such file") + "). Check the path.");
-  std::ostringstream text;
-  text << in.rdbuf();
-  return load_workflow_text(text.str(), file, overrides);
+  // Read at most one byte more than the limit: a huge (or endless, /dev/zero) file is refused
+  // without being read whole.
+  std::string text(kMaxWorkflowBytes + 1, '\0');
+  in.read(text.data(), std::streamsize(text.size()));
+  text.resize(std::size_t(in.gcount()));
+  if (text.size() > kMaxWorkflowBytes) {
+    auto size = fs::file_size(file, ec);
+    throw WorkflowError(too_large(file, ec ? text.size() : size));
+  }
+  return load_workflow_text(text, file, overrides);
 }
 
 namespace {
@@ -188,6 +217,7 @@ size_t invalid_utf8(const std::string& s) {
 Workflow load_workflow_text(const std::string& text, const fs::path& file, const std::vector<std::string>& overrides) {
   Source src;
   src.file = file.string();
+  if (text.size() > kMaxWorkflowBytes) throw WorkflowError(too_large(file, text.size()));
   if (size_t bad = invalid_utf8(text); bad != std::string::npos) {
     int line = 1 + int(std::count(text.begin(), text.begin() + long(bad), '\n'));
     throw WorkflowError(file.string() + ":" + std::to_string(line) + ": the file is not valid UTF-8 (byte offset " +
@@ -213,8 +243,19 @@ Workflow load_workflow_text(const std::string& text, const fs::path& file, const
     if (eq == std::string::npos || dot == std::string::npos || dot > eq)
       throw WorkflowError("--set " + o + ": expected STAGE.PARAM=VALUE, e.g. --set split.layers=12");
     std::string stage = o.substr(0, dot), path = o.substr(dot + 1, eq - dot - 1), value = o.substr(eq + 1);
-    if (!doc.contains("stages") || !doc["stages"].is_object() || !doc["stages"].contains(stage))
-      throw WorkflowError("--set " + o + ": the workflow " + file.string() + " has no stage '" + stage + "'.");
+    if (value.empty())
+      throw WorkflowError("--set " + o + ": the value is empty. Give one, e.g. --set " + stage + "." + path +
+                          "=VALUE (an empty string is --set '" + stage + "." + path + "=\"\"').");
+    if (is_nan_text(value))
+      throw WorkflowError("--set " + o + ": " + value + " is not a number. Give a finite number.");
+    if (!doc.contains("stages") || !doc["stages"].is_object() || !doc["stages"].contains(stage)) {
+      std::vector<std::string> names;
+      if (doc.contains("stages") && doc["stages"].is_object())
+        for (auto& [n, v] : doc["stages"].items()) names.push_back(n);
+      std::string near = nearest_name(stage, names);
+      throw WorkflowError("--set " + o + ": the workflow " + file.string() + " has no stage '" + stage + "'" +
+                          (near.empty() ? "." : "; did you mean '" + near + "'?"));
+    }
     json& st = doc["stages"][stage];
     if (!st.is_object()) break;  // reported by validation below
     std::string ptr = "/stages/" + escape_token(stage) + "/with";
@@ -227,7 +268,8 @@ Workflow load_workflow_text(const std::string& text, const fs::path& file, const
     for (size_t i = 0; i < toks.size(); ++i) {
       if (!target->is_object())
         throw WorkflowError("--set " + o + ": '" + stage + "." + path + "' does not name a parameter of an object.");
-      ptr += "/" + escape_token(toks[i]);
+      ptr += '/';
+      ptr += escape_token(toks[i]);
       target = &(*target)[toks[i]];
     }
     YAML::Node v;
@@ -258,6 +300,10 @@ Workflow load_workflow_text(const std::string& text, const fs::path& file, const
   wf.file = file;
   wf.dir = fs::absolute(file).parent_path();
   wf.name = doc["name"];
+  if (wf.name.size() > kMaxNameLength)
+    src.fail("/name", "the workflow name is " + std::to_string(wf.name.size()) + " characters long; at most " +
+                          std::to_string(kMaxNameLength) + " are allowed (it names the folders out/<name>/ and the cache's "
+                          "records). Give it a shorter `name:`.");
 
   // Stages in file order (yaml-cpp keeps document order; nlohmann sorts, so walk the YAML).
   std::vector<StageDecl> decls;
@@ -267,6 +313,9 @@ Workflow load_workflow_text(const std::string& text, const fs::path& file, const
     std::string base = "/stages/" + escape_token(name);
     if (!std::regex_match(name, name_re))
       src.fail(base, "stage name '" + name + "' must start with a letter or '_' and contain only letters, digits, '_' and '-'.");
+    if (name.size() > kMaxNameLength)
+      src.fail(base, "a stage name is " + std::to_string(name.size()) + " characters long; at most " +
+                         std::to_string(kMaxNameLength) + " are allowed (it names the cache's record of the stage). Shorten it.");
     json& st = doc["stages"][name];
     StageDecl d;
     d.name = name;
@@ -276,8 +325,14 @@ Workflow load_workflow_text(const std::string& text, const fs::path& file, const
     const StageKind* kind = find_stage_kind(d.kind);
     if (!kind) {
       std::string known;
-      for (auto* k : all_stage_kinds()) known += (known.empty() ? "" : ", ") + k->kind;
-      src.fail(base + "/kind", "stage '" + name + "': unknown kind '" + d.kind + "'. Known kinds: " + known +
+      std::vector<std::string> names;
+      for (auto* k : all_stage_kinds()) {
+        known += (known.empty() ? "" : ", ") + k->kind;
+        names.push_back(k->kind);
+      }
+      std::string near = nearest_name(d.kind, names);
+      src.fail(base + "/kind", "stage '" + name + "': unknown kind '" + d.kind + "'" +
+                                   (near.empty() ? "." : "; did you mean '" + near + "'?") + " Known kinds: " + known +
                                    " (`meshflow kinds` describes them).");
     }
     const json* schema = kind_schema(*kind);
@@ -289,7 +344,12 @@ Workflow load_workflow_text(const std::string& text, const fs::path& file, const
       std::string param = dotted(is.pointer.substr(base.size() + 5));
       std::string what = "stage '" + name + "' (kind " + d.kind + "), parameter '" + param + "' " + is.message + ".";
       if (!is.description.empty()) what += " " + param + ": " + is.description;
-      what += " Fix it in the workflow or with --set " + name + "." + param + "=VALUE.";
+      std::string settable = param;
+      if (!is.suggestion.empty()) {
+        auto dot = settable.rfind('.');
+        settable = (dot == std::string::npos ? "" : settable.substr(0, dot + 1)) + is.suggestion;
+      }
+      what += " Fix it in the workflow or with --set " + name + "." + settable + "=VALUE.";
       src.fail(is.pointer, what);
     }
     for (auto& p : file_parameters(d.params, *schema)) {
@@ -308,8 +368,14 @@ Workflow load_workflow_text(const std::string& text, const fs::path& file, const
       std::string p = "/stages/" + escape_token(d.name) + "/needs/" + std::to_string(j);
       if (!index.count(d.needs[j])) {
         std::string known;
-        for (auto& e : decls) known += (known.empty() ? "" : ", ") + e.name;
-        src.fail(p, "stage '" + d.name + "' needs '" + d.needs[j] + "', which is not a stage of this workflow (stages: " + known +
+        std::vector<std::string> names;
+        for (auto& e : decls) {
+          known += (known.empty() ? "" : ", ") + e.name;
+          names.push_back(e.name);
+        }
+        std::string near = nearest_name(d.needs[j], names);
+        src.fail(p, "stage '" + d.name + "' needs '" + d.needs[j] + "', which is not a stage of this workflow" +
+                        (near.empty() ? "" : "; did you mean '" + near + "'?") + " (stages: " + known +
                         "). Fix the name or declare that stage.");
       }
       if (std::count(d.needs.begin(), d.needs.end(), d.needs[j]) > 1)

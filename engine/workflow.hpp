@@ -14,6 +14,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include <cstddef>
 #include <filesystem>
 #include <optional>
 #include <stdexcept>
@@ -21,6 +22,12 @@
 #include <vector>
 
 namespace meshflow {
+
+// Bounds on what a workflow file may hold, checked while loading (a workflow is a few kB and
+// a few hundred YAML nodes; these leave ample room and stop a hostile file early):
+constexpr std::size_t kMaxWorkflowBytes = 1 << 20;  // the file (1 MiB)
+constexpr std::size_t kMaxYamlNodes = 100000;       // nodes after alias expansion (`*a` copies `&a`)
+constexpr std::size_t kMaxNameLength = 100;         // workflow and stage names (they name files)
 
 // Every problem with a workflow is reported as one paragraph: where, what, what to do.
 struct WorkflowError : std::runtime_error {

@@ -29,8 +29,12 @@
 #include <Message.hxx>
 #include <IGESControl_Controller.hxx>
 #include <IGESControl_Writer.hxx>
+#include <IGESData_GlobalSection.hxx>
+#include <IGESData_IGESModel.hxx>
 #include <Message_PrinterOStream.hxx>
+#include <APIHeaderSection_MakeHeader.hxx>
 #include <STEPControl_Writer.hxx>
+#include <TCollection_HAsciiString.hxx>
 #include <StepData_StepModel.hxx>
 #include <Interface_Static.hxx>
 #include <ShapeAnalysis_Curve.hxx>
@@ -42,6 +46,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
+#include <ctime>
 #include <fstream>
 #include <set>
 #include <sstream>
@@ -207,6 +213,26 @@ void Shape::export_brep(const std::filesystem::path& file) const {
   if (!out) throw StageError("writing '" + file.string() + "' failed");
 }
 
+namespace {
+// The time written into STEP and IGES headers, formatted by strftime's `format`:
+// $SOURCE_DATE_EPOCH (seconds, the reproducible-builds convention) when set, else the epoch
+// itself. Never the wall clock: two runs of one workflow write byte-identical files.
+std::string header_time(const char* format) {
+  long long t = 0;
+  if (const char* e = std::getenv("SOURCE_DATE_EPOCH"); e && *e) {
+    char* end = nullptr;
+    long long v = std::strtoll(e, &end, 10);
+    if (end && *end == '\0' && v >= 0) t = v;
+  }
+  std::time_t tt = std::time_t(t);
+  std::tm tm{};
+  gmtime_r(&tt, &tm);
+  char buf[32];
+  std::strftime(buf, sizeof buf, format, &tm);
+  return buf;
+}
+}  // namespace
+
 void Shape::export_step(const std::filesystem::path& file) const {
   occt::silence();
   const std::string& un = impl_->units;
@@ -219,8 +245,11 @@ void Shape::export_step(const std::filesystem::path& file) const {
   // the shape's coordinates are in its own unit, and so is the file: no conversion
   w.Model()->SetLocalLengthUnit(mm);
   w.Model()->SetWriteLengthUnit(mm);
-  if (w.Transfer(impl_->shape, STEPControl_AsIs) != IFSelect_RetDone || w.Write(file.c_str()) != IFSelect_RetDone)
+  if (w.Transfer(impl_->shape, STEPControl_AsIs) != IFSelect_RetDone)
     throw StageError("writing the STEP file '" + file.string() + "' failed");
+  APIHeaderSection_MakeHeader header(w.Model());
+  header.SetTimeStamp(new TCollection_HAsciiString(header_time("%Y-%m-%dT%H:%M:%S").c_str()));
+  if (w.Write(file.c_str()) != IFSelect_RetDone) throw StageError("writing the STEP file '" + file.string() + "' failed");
 }
 
 void Shape::export_iges(const std::filesystem::path& file) const {
@@ -231,8 +260,13 @@ void Shape::export_iges(const std::filesystem::path& file) const {
   // the shape's coordinates are in its own unit, and so is the file: no conversion
   Interface_Static::SetCVal("xstep.cascade.unit", u);
   IGESControl_Writer w(u, 1);  // mode 1: BRep (manifold solids with faces and edges), not trimmed surfaces
-  if (!w.AddShape(impl_->shape) || !w.Write(file.c_str()))
-    throw StageError("writing the IGES file '" + file.string() + "' failed");
+  if (!w.AddShape(impl_->shape)) throw StageError("writing the IGES file '" + file.string() + "' failed");
+  IGESData_GlobalSection& header = w.Model()->ChangeGlobalSection();
+  Handle(TCollection_HAsciiString) date = new TCollection_HAsciiString(header_time("%Y%m%d.%H%M%S").c_str());
+  header.SetDate(date);
+  header.SetLastChangeDate(date);
+  header.SetAuthorName(new TCollection_HAsciiString("meshflow"));  // not the login name: same file for every user
+  if (!w.Write(file.c_str())) throw StageError("writing the IGES file '" + file.string() + "' failed");
 }
 
 const std::string& Shape::units() const { return impl_->units; }
