@@ -34,6 +34,7 @@
 
 #include <BOPAlgo_MakerVolume.hxx>
 #include <BRepBuilderAPI_MakeFace.hxx>
+#include <BRepBuilderAPI_Sewing.hxx>
 #include <BRepCheck_Analyzer.hxx>
 #include <BRepGProp.hxx>
 #include <BRepTools_History.hxx>
@@ -334,22 +335,62 @@ PassageLines passage_lines(const BladeSections& bs, const Frame& F, double pitch
   return L;
 }
 
-// The Geom surfaces of the seven sides and their faces.
+// A sharp corner of the sections (a sharp trailing edge): the point index where every file
+// section's loop turns by more than 60 degrees and by more than three times as much as at either
+// neighbouring point (unrolled on its mean radius: x, r θ), or -1. Smooth sections turn by 25
+// degrees at most per point (Rotor 67's round edges), a coarsely sampled elliptic nose by large
+// but similar angles at three points in a row; a cambered NACA section with a closed trailing
+// edge turns by 166 degrees there and by a few at its neighbours.
+int sharp_corner(const std::vector<std::vector<Cyl>>& loops) {
+  int corner = -2;
+  for (auto& l : loops) {
+    double rm = 0;
+    for (auto& p : l) rm += p.r / l.size();
+    const size_t n = l.size();
+    std::vector<double> turn(n);
+    for (size_t i = 0; i < n; ++i) {
+      const Cyl &a = l[(i + n - 1) % n], &b = l[i], &c = l[(i + 1) % n];
+      double d1x = b.x - a.x, d1y = rm * (b.t - a.t), d2x = c.x - b.x, d2y = rm * (c.t - b.t);
+      turn[i] = std::abs(std::atan2(d1x * d2y - d1y * d2x, d1x * d2x + d1y * d2y)) * 180 / M_PI;
+    }
+    int best = -1;
+    for (size_t i = 0; i < n; ++i)
+      if (turn[i] > 60 && turn[i] > 3 * std::max(turn[(i + n - 1) % n], turn[(i + 1) % n]) && (best < 0 || turn[i] > turn[best]))
+        best = (int)i;
+    if (best < 0) return -1;
+    if (corner == -2) corner = best;
+    else if (corner != best) return -1;
+  }
+  return corner < 0 ? -1 : corner;
+}
+
+// The Geom surfaces of the seven sides.
 struct Surfaces {
   Handle(Geom_BSplineSurface) blade, plo, phi;
   Handle(Geom_SurfaceOfRevolution) hub, cas;
   std::vector<double> bu, bv;   // blade parameters of the loops' points and sections
   double section_err = 0;       // largest distance of a file point to the blade surface
+  // A sharp trailing edge (sections' point `corner`): the blade is one non-periodic surface from
+  // the corner round to the corner (C0 there, C2 elsewhere), made two faces split at the leading
+  // edge's parameter `u_le` (tangent-continuous there: one surface). Else one periodic surface.
+  int corner = -1;
+  double u_le = 0;
 };
 
-Surfaces build_surfaces(const PassageLines& L, double pitch, double tol) {
+Surfaces build_surfaces(const PassageLines& L, int corner, double pitch, double tol) {
   Surfaces S;
+  S.corner = corner;
   std::vector<std::vector<gp_Pnt>> rows;
   for (auto& l : L.loops) {
     rows.emplace_back();
-    for (auto& p : l) rows.back().push_back(cart(p));
+    const size_t n = l.size();
+    if (corner < 0)
+      for (auto& p : l) rows.back().push_back(cart(p));
+    else
+      for (size_t i = 0; i <= n; ++i) rows.back().push_back(cart(l[(corner + i) % n]));
   }
-  S.blade = skin(rows, true, tol, S.bu, S.bv);
+  S.blade = skin(rows, corner < 0, tol, S.bu, S.bv);
+  if (corner >= 0) S.u_le = S.bu[(L.loops[0].size() - corner) % L.loops[0].size()];
   for (size_t k = 1; k + 1 < rows.size(); ++k)
     for (size_t i = 0; i < rows[k].size(); ++i)
       S.section_err = std::max(S.section_err, S.blade->Value(S.bu[i], S.bv[k]).Distance(rows[k][i]));
@@ -377,17 +418,41 @@ constexpr int kSources = 7;
 const char* const kSourceName[kSources] = {"hub", "casing", "inflow", "outflow", "periodic_lo", "periodic_hi", "blade"};
 const Tag kSourceTag[kSources] = {Tag::wall, Tag::wall, Tag::farfield, Tag::farfield, Tag::periodic_lo, Tag::periodic_hi, Tag::wall};
 
-std::vector<TopoDS_Face> make_faces(const Surfaces& S, const PassageLines& L, const Frame& F, double tol) {
+// The boolean's arguments and the surface (0..kSources-1) each comes from.
+struct Faces {
+  std::vector<TopoDS_Face> f;
+  std::vector<int> source;
+};
+
+Faces make_faces(const Surfaces& S, const PassageLines& L, const Frame& F, double tol) {
   const double R = 1.5 * F.rmax;
-  std::vector<TopoDS_Face> src(kSources);
-  src[0] = BRepBuilderAPI_MakeFace(S.hub, L.ta, L.tb, 0, 1, tol);
-  src[1] = BRepBuilderAPI_MakeFace(S.cas, L.ta, L.tb, 0, 1, tol);
-  src[2] = BRepBuilderAPI_MakeFace(gp_Pln(gp_Pnt(F.x_in, 0, 0), gp_Dir(1, 0, 0)), -R, R, -R, R);
-  src[3] = BRepBuilderAPI_MakeFace(gp_Pln(gp_Pnt(F.x_out, 0, 0), gp_Dir(1, 0, 0)), -R, R, -R, R);
-  src[4] = BRepBuilderAPI_MakeFace(S.plo, Precision::Confusion());
-  src[5] = BRepBuilderAPI_MakeFace(S.phi, Precision::Confusion());
-  src[6] = BRepBuilderAPI_MakeFace(S.blade, Precision::Confusion());
-  return src;
+  Faces out;
+  auto add = [&](const TopoDS_Face& f, int s) { out.f.push_back(f), out.source.push_back(s); };
+  add(BRepBuilderAPI_MakeFace(S.hub, L.ta, L.tb, 0, 1, tol), 0);
+  add(BRepBuilderAPI_MakeFace(S.cas, L.ta, L.tb, 0, 1, tol), 1);
+  add(BRepBuilderAPI_MakeFace(gp_Pln(gp_Pnt(F.x_in, 0, 0), gp_Dir(1, 0, 0)), -R, R, -R, R), 2);
+  add(BRepBuilderAPI_MakeFace(gp_Pln(gp_Pnt(F.x_out, 0, 0), gp_Dir(1, 0, 0)), -R, R, -R, R), 3);
+  add(BRepBuilderAPI_MakeFace(S.plo, Precision::Confusion()), 4);
+  add(BRepBuilderAPI_MakeFace(S.phi, Precision::Confusion()), 5);
+  if (S.corner < 0) {
+    add(BRepBuilderAPI_MakeFace(S.blade, Precision::Confusion()), 6);
+  } else {
+    double u0, u1, v0, v1;
+    S.blade->Bounds(u0, u1, v0, v1);
+    // sewn first, so that the two faces share their leading- and trailing-edge edges (the
+    // boolean alone keeps them apart: the blade would not close)
+    // Each face its own segment of the surface: two faces on one surface are merged by heal's
+    // unify into one face whose seam is the crease, which fails OCCT's validity check.
+    BRepBuilderAPI_Sewing sew(Precision::Confusion());
+    for (auto [a, b] : {std::pair{u0, S.u_le}, std::pair{S.u_le, u1}}) {
+      Handle(Geom_BSplineSurface) part = Handle(Geom_BSplineSurface)::DownCast(S.blade->Copy());
+      part->Segment(a, b, v0, v1);
+      sew.Add(BRepBuilderAPI_MakeFace(part, Precision::Confusion()));
+    }
+    sew.Perform();
+    for (TopExp_Explorer ex(sew.SewedShape(), TopAbs_FACE); ex.More(); ex.Next()) add(TopoDS::Face(ex.Current()), 6);
+  }
+  return out;
 }
 
 Cyl cyl_of(const gp_Pnt& p) { return {p.X(), std::hypot(p.Y(), p.Z()), std::atan2(p.Z(), p.Y())}; }
@@ -458,10 +523,10 @@ struct Sector {
   int faces_by_source[kSources] = {0, 0, 0, 0, 0, 0, 0};
 };
 
-Sector make_sector(StageContext& ctx, const std::vector<TopoDS_Face>& src, const std::string& diag) {
+Sector make_sector(StageContext& ctx, const Faces& src, const std::string& diag) {
   BOPAlgo_MakerVolume mv;
   TopTools_ListOfShape args;
-  for (auto& f : src) args.Append(f);
+  for (auto& f : src.f) args.Append(f);
   mv.SetArguments(args);
   mv.SetRunParallel(false);
   mv.SetIntersect(true);
@@ -471,10 +536,10 @@ Sector make_sector(StageContext& ctx, const std::vector<TopoDS_Face>& src, const
                      "(OCCT BOPAlgo_MakerVolume); check upstream/downstream and the section file." + diag);
   Handle(BRepTools_History) hist = mv.History();
   auto source_of = [&](const TopoDS_Shape& f) {
-    for (int s = 0; s < kSources; ++s) {
-      if (f.IsSame(src[s])) return s;
-      for (TopTools_ListIteratorOfListOfShape it(hist->Modified(src[s])); it.More(); it.Next())
-        if (it.Value().IsSame(f)) return s;
+    for (size_t i = 0; i < src.f.size(); ++i) {
+      if (f.IsSame(src.f[i])) return src.source[i];
+      for (TopTools_ListIteratorOfListOfShape it(hist->Modified(src.f[i])); it.More(); it.Next())
+        if (it.Value().IsSame(f)) return src.source[i];
     }
     return -1;
   };
@@ -542,9 +607,15 @@ void run(StageContext& ctx) {
   ctx.progress(0.1, "blade surface");
   Sector sector;
   double section_err = 0;
+  int sharp = -1;
   std::vector<Finding> found;
   try {
-    Surfaces S = build_surfaces(L, pitch, tol);
+    const int corner = sharp_corner(bs.loops);
+    if (corner >= 0)
+      ctx.log("blade_sector: the sections have a sharp corner at point " + std::to_string(corner + 1) +
+              " (a sharp trailing edge): the blade is two faces meeting there, split at the leading edge");
+    Surfaces S = build_surfaces(L, corner, pitch, tol);
+    sharp = corner;
     section_err = S.section_err;
     ctx.progress(0.3, "surface checks");
     PassageSamples ps = sample_passage(S, L, bs, F, pitch, units);
@@ -582,6 +653,7 @@ void run(StageContext& ctx) {
   for (int s = 0; s < kSources; ++s) by[kSourceName[s]] = sector.faces_by_source[s];
   st["faces_by_surface"] = by;
   if (bs.resampled_from > 0) st["sections_resampled_from"] = bs.resampled_from;
+  if (sharp >= 0) st["sharp_trailing_edge_point"] = sharp + 1;
   if (!found.empty()) {
     nlohmann::json notes = nlohmann::json::array();
     for (auto& f : found) notes.push_back(f.text);

@@ -369,6 +369,30 @@ size_t argmax_x(const std::vector<Cyl>& l) {
   return te;
 }
 
+// Every loop made to start at its leading edge (smallest x). The blade surface joins point i of
+// each section to point i of the next, so when the file's sections start at the same relative
+// point (their smallest-x points at the same index, give or take a tenth of the loop: a twisted
+// blade's leading edge moves by a point or two between sections) all loops are turned by the
+// same count, section 1's: the file's own correspondence is kept (turning each to its own
+// smallest x shifted it by those points, and a sharp trailing edge then ran diagonally across
+// the surface, which folded there). Otherwise each loop starts at its own smallest x.
+void start_at_leading_edge(std::vector<std::vector<Cyl>>& loops, std::vector<std::string>& notes) {
+  const size_t n = loops[0].size();
+  const size_t s0 = argmin_x(loops[0]);
+  bool common = true;
+  for (auto& l : loops) {
+    if (l.size() != n) {
+      common = false;  // resampled afterwards, from each loop's own leading edge
+      break;
+    }
+    size_t d = (argmin_x(l) + n - s0) % n;
+    common &= std::min(d, n - d) <= n / 10;
+  }
+  for (auto& l : loops) std::rotate(l.begin(), l.begin() + (common ? s0 : argmin_x(l)), l.end());
+  if (!common && loops.back().size() == n)
+    notes.push_back("the sections start at different points of their loops: each turned to start at its smallest x");
+}
+
 // A polyline resampled to n points at cosine-spaced arc length (ends kept, dense at both ends).
 std::vector<Cyl> resample(const std::vector<Cyl>& s, size_t n) {
   std::vector<double> len(s.size(), 0.0);
@@ -410,7 +434,11 @@ void resample_loops(std::vector<std::vector<Cyl>>& loops) {
 std::vector<std::vector<Cyl>> mean_lines(const std::vector<std::vector<Cyl>>& loops, const std::string& source) {
   const int M = 41;
   std::vector<std::vector<Cyl>> out;
-  for (auto& loop : loops) {
+  for (auto& given : loops) {
+    // from this loop's own leading edge (the loops may start a few points away: see
+    // start_at_leading_edge)
+    std::vector<Cyl> loop = given;
+    std::rotate(loop.begin(), loop.begin() + argmin_x(loop), loop.end());
     size_t n = loop.size(), te = argmax_x(loop);
     if (te == 0 || !(loop[te].x > loop[0].x))
       fail(source, 0, "a section has no axial extent (leading and trailing edge at the same x)");
@@ -518,8 +546,8 @@ BladeSections parse_blade_table(std::string_view text, const std::string& source
       std::reverse(l.begin(), l.end());
       b.notes.push_back("section " + std::to_string(k + 1) + " runs the other way round: reversed");
     }
-    std::rotate(l.begin(), l.begin() + argmin_x(l), l.end());
   }
+  start_at_leading_edge(b.loops, b.notes);
   size_t nmax = 0;
   bool differ = false;
   for (auto& l : b.loops) differ |= l.size() != b.loops[0].size(), nmax = std::max(nmax, l.size());
