@@ -61,11 +61,15 @@ BladeFigures measure_blade(const BladeSections& bs, int blades, double to_result
     for (auto& p : s) p.x *= to_result, p.y *= to_result;
     rm *= to_result;
     size_t n = s.size();
-    // chord: the farthest point from the leading edge (loops start at their smallest x)
+    // the leading edge: the smallest x (loops start within a few points of it); the chord: the
+    // farthest point from it
+    size_t ile = 0;
+    for (size_t i = 1; i < n; ++i)
+      if (s[i].x < s[ile].x) ile = i;
     double chord = 0;
-    for (auto& p : s) chord = std::max(chord, dist(p, s[0]));
+    for (auto& p : s) chord = std::max(chord, dist(p, s[ile]));
     if (chord < f.chord) f.chord = chord, f.chord_section = (int)k;
-    double le = radius_at(s, 0);
+    double le = radius_at(s, ile);
     if (le < f.le_radius) f.le_radius = le, f.le_section = (int)k;
     for (size_t i = 0; i < n; ++i) {
       double r = radius_at(s, i);
@@ -111,10 +115,14 @@ BladeChoices choose_blade(const BladeFigures& f) {
   c.min_size = 0.5 * f.le_radius;
   c.min_size_why = "half the leading-edge radius " + fmt(f.le_radius) + " (section " + std::to_string(f.le_section + 1) +
                    "): 30-degree turns resolve the nose";
-  // the largest: a tenth of the shortest chord, at most a third of the throat
-  c.max_size = std::min(0.1 * f.chord, f.throat / 3);
-  c.max_size_why = 0.1 * f.chord <= f.throat / 3 ? "a tenth of the shortest chord " + fmt(f.chord)
-                                                  : "a third of the narrowest throat " + fmt(f.throat);
+  // the largest: a tenth of the shortest chord, at most a third of the throat and the layer's
+  // thickness (twice it left 4 of 10,014 prisms folded round a synthetic blade's leading edge,
+  // where the chordwise size is the nose's and the spanwise one max_size)
+  const double by_chord_max = 0.1 * f.chord, by_throat_max = f.throat / 3;
+  c.max_size = std::min({by_chord_max, by_throat_max, c.thickness});
+  c.max_size_why = c.max_size == c.thickness ? "the layer's thickness, so that the prisms round the leading edge stay valid"
+                   : c.max_size == by_chord_max ? "a tenth of the shortest chord " + fmt(f.chord)
+                                                : "a third of the narrowest throat " + fmt(f.throat);
   c.max_size = std::max(c.max_size, c.min_size);
   return c;
 }

@@ -22,6 +22,8 @@ using meshflow::init::choose;
 
 namespace {
 const fs::path data = MESHFLOW_DATA_DIR;
+// scripts/synthetic-blade.py's arguments for the small blade row run end to end
+const char* const kSmallBlade = "--sections 4 --points 24 --hub 15 --tip 18 --chord 6 6.5 --stagger 30 40";
 meshflow::init::Analysis analysed(const fs::path& f) {
   return analyse(meshflow::geometry::import_cad(f, "", 1.0, [](const std::string&) {}));
 }
@@ -245,4 +247,38 @@ TEST_CASE("init: a synthetic blade's sections give a layer and sizes from chord,
   CHECK(b.err.find("bad.csv") != std::string::npos);
   CHECK(b.err.find(", line ") != std::string::npos);
   CHECK(!fs::exists(dir / "bad.yaml"));
+}
+
+TEST_CASE("init: a small synthetic blade row, written by init and run as it is, ends valid") {
+  // scripts/synthetic-blade.py: 4 sections of a cambered NACA-like profile with a sharp trailing
+  // edge, r = 15 .. 18 cm, 36 blades; order 2 and 3 layers keep it short
+  fs::path dir = mftest::temp_dir("init-blade-run");
+  struct Cleanup {
+    fs::path d;
+    ~Cleanup() {
+      std::error_code ec;
+      fs::remove_all(d, ec);
+    }
+  } cleanup{dir};
+  fs::path csv = dir / "row.csv";
+  auto g = mftest::sh(std::string(MESHFLOW_PYTHON) + " " + MESHFLOW_SOURCE_DIR "/scripts/synthetic-blade.py " + csv.string() +
+                      " --units-comment cm " + kSmallBlade + " 2>&1");
+  REQUIRE_MESSAGE(g.code == 0, g.out);
+  fs::path wf = dir / "row.yaml";
+  auto r = mftest::run_cli({"init", csv.string(), "-o", wf.string(), "--blades", "36", "--order", "2", "--layers", "3"});
+  REQUIRE_MESSAGE(r.code == 0, r.err);
+  auto run = mftest::sh(std::string(MESHFLOW_EXE) + " run " + wf.string() + " --cache " + (dir / "cache").string() +
+                        " --out " + (dir / "out").string() + " 2>&1");
+  CAPTURE(run.out);
+  CHECK(run.code == 0);
+  auto report = nlohmann::json::parse(mftest::read_text(dir / "out/report.json"));
+  CHECK(report["ok"] == true);
+  CHECK(report["problems"].empty());
+  auto split = mftest::stage_stats(dir / "out", "split");
+  CHECK(split["mesh"]["invalid"] == 0);
+  CHECK(split["split"]["layers"] == 3);
+  CHECK(split["mesh"]["elements"]["prism"] > 0);
+  auto geo = mftest::stage_stats(dir / "out", "geometry");
+  CHECK(geo["sharp_trailing_edge_point"].is_number());
+  CHECK(geo["faces_by_surface"]["blade"] == 2);
 }
