@@ -1,5 +1,7 @@
-// meshflow geometry — Rotor 67 and CSV blade section readers (see blade_sections.hpp).
+// meshflow geometry — the Rotor 67 export reader and the helpers the section readers share (see
+// blade_sections.hpp; section tables: section_table.cpp).
 #include "stages/geometry/blade_sections.hpp"
+#include "stages/geometry/section_util.hpp"
 
 #include "engine/stage.hpp"
 
@@ -79,17 +81,21 @@ bool numbers(const std::string& l, std::vector<double>& out, const char* seps = 
   return true;
 }
 
-[[noreturn]] void fail(const std::string& source, size_t line, const std::string& what) {
-  throw StageError("blade section file '" + source + "'" + (line ? ", line " + std::to_string(line) : std::string()) +
-                   ": " + what);
-}
 
 double dist(const Cyl& a, const Cyl& b) {
   double ax = a.r * std::cos(a.t), ay = a.r * std::sin(a.t), bx = b.r * std::cos(b.t), by = b.r * std::sin(b.t);
   return std::sqrt((a.x - b.x) * (a.x - b.x) + (ax - bx) * (ax - bx) + (ay - by) * (ay - by));
 }
 
-// Consecutive points of every loop distinct (interpolation needs it), relative to the extent.
+}  // namespace
+
+[[noreturn]] void fail(const std::string& source, size_t line, const std::string& what) {
+  throw StageError("blade section file '" + source + "'" + (line ? ", line " + std::to_string(line) : std::string()) +
+                   ": " + what);
+}
+
+std::vector<std::string> split_lines(std::string_view t) { return Lines(t).v; }
+
 void check_loops(const BladeSections& b, const std::string& source) {
   for (size_t k = 0; k < b.loops.size(); ++k) {
     const auto& L = b.loops[k];
@@ -102,8 +108,6 @@ void check_loops(const BladeSections& b, const std::string& source) {
                             std::to_string((i + 1) % L.size() + 1) + " of the blade loop coincide");
   }
 }
-
-}  // namespace
 
 bool is_rotor67_export(std::string_view text) {
   return upper(std::string(text)).find("SURFACE NUMBER") != std::string::npos;
@@ -229,99 +233,6 @@ BladeSections parse_rotor67(std::string_view text, const std::string& source) {
       if (!((*m)[j].x > (*m)[j - 1].x))
         fail(source, 0, std::string(m == &b.hub ? "hub" : "casing") + " streamsurface: axial distance not increasing at point " + std::to_string(j + 1));
   check_loops(b, source);
-  return b;
-}
-
-BladeSections parse_blade_csv(std::string_view text, const std::string& source, double hub_radius, double casing_radius) {
-  Lines L(text);
-  std::vector<std::vector<std::array<double, 3>>> secs(1);
-  std::vector<size_t> sec_line(1, 0);
-  for (size_t i = 0; i < L.v.size(); ++i) {
-    std::string l = L.v[i].substr(0, L.v[i].find('#'));
-    if (blank(l) || std::isalpha((unsigned char)tokens(l)[0][0])) {
-      if (!secs.back().empty()) secs.emplace_back(), sec_line.push_back(i + 1);
-      continue;
-    }
-    std::vector<double> x;
-    if (!numbers(l, x, ",;") || x.size() != 3) fail(source, i + 1, "expected three numbers x, y, z");
-    if (secs.back().empty()) sec_line.back() = i + 1;
-    secs.back().push_back({x[0], x[1], x[2]});
-    if (secs.size() * secs.back().size() > 2000000) fail(source, i + 1, "too many points (more than 2,000,000)");
-  }
-  if (secs.back().empty()) secs.pop_back();
-  if (secs.size() < 2) fail(source, 0, "needs at least two sections (separated by blank lines), found " + std::to_string(secs.size()));
-  for (auto& s : secs)
-    if (s.size() > 3 && s.front() == s.back()) s.pop_back();
-  for (size_t k = 0; k < secs.size(); ++k) {
-    if (secs[k].size() < 8) fail(source, sec_line[k], "section " + std::to_string(k + 1) + " has fewer than 8 points");
-    if (secs[k].size() != secs[0].size())
-      fail(source, sec_line[k], "section " + std::to_string(k + 1) + " has " + std::to_string(secs[k].size()) +
-                                    " points, section 1 has " + std::to_string(secs[0].size()) + ": all sections need the same count");
-  }
-  BladeSections b;
-  b.format = "csv";
-  double prev_mean = 0;
-  for (size_t k = 0; k < secs.size(); ++k) {
-    std::vector<Cyl> loop;
-    double last = 0, sum = 0;
-    for (size_t i = 0; i < secs[k].size(); ++i) {
-      auto& p = secs[k][i];
-      double r = std::hypot(p[1], p[2]);
-      if (!(r > 0) || !std::isfinite(r)) fail(source, sec_line[k], "section " + std::to_string(k + 1) + ": a point lies on the axis (x)");
-      double t = std::atan2(p[2], p[1]);
-      if (i == 0 && k > 0) t += 2 * kPi * std::round((prev_mean - t) / (2 * kPi));
-      if (i > 0) t += 2 * kPi * std::round((last - t) / (2 * kPi));  // unwrap
-      last = t;
-      sum += t;
-      loop.push_back({p[0], r, t});
-    }
-    prev_mean = sum / loop.size();
-    // start at the leading edge (smallest x), suction side first is not needed: keep the order
-    size_t le = 0;
-    for (size_t i = 1; i < loop.size(); ++i)
-      if (loop[i].x < loop[le].x) le = i;
-    std::rotate(loop.begin(), loop.begin() + le, loop.end());
-    b.loops.push_back(std::move(loop));
-  }
-  check_loops(b, source);
-  // mean lines: both sides from the leading edge (min x) to the trailing edge (max x), at
-  // common cosine-spaced axial stations, θ and r averaged.
-  const int M = 41;
-  double xmin = 1e300, xmax = -1e300;
-  for (auto& loop : b.loops) {
-    size_t n = loop.size(), te = 0;
-    for (size_t i = 1; i < n; ++i)
-      if (loop[i].x > loop[te].x) te = i;
-    if (te == 0 || !(loop[te].x > loop[0].x)) fail(source, 0, "a section has no axial extent (leading and trailing edge at the same x)");
-    std::vector<Cyl> A(loop.begin(), loop.begin() + te + 1), B;
-    for (size_t i = n; i >= te; --i) B.push_back(loop[i % n]);
-    auto at = [](const std::vector<Cyl>& s, double x) {
-      for (size_t i = 0; i + 1 < s.size(); ++i) {
-        double a = s[i].x, c = s[i + 1].x;
-        if ((x >= std::min(a, c) && x <= std::max(a, c))) {
-          double w = c != a ? (x - a) / (c - a) : 0.5;
-          return Cyl{x, s[i].r + w * (s[i + 1].r - s[i].r), s[i].t + w * (s[i + 1].t - s[i].t)};
-        }
-      }
-      return s.back();
-    };
-    std::vector<Cyl> mean;
-    for (int i = 0; i < M; ++i) {
-      double x = loop[0].x + (loop[te].x - loop[0].x) * 0.5 * (1 - std::cos(kPi * i / (M - 1)));
-      Cyl a = at(A, x), c = at(B, x);
-      mean.push_back({x, 0.5 * (a.r + c.r), 0.5 * (a.t + c.t)});
-    }
-    xmin = std::min(xmin, loop[0].x), xmax = std::max(xmax, loop[te].x);
-    b.mean.push_back(std::move(mean));
-  }
-  double rh = 1e300, rc = 0;
-  for (auto& p : b.loops.front()) rh = std::min(rh, p.r);
-  for (auto& p : b.loops.back()) rc = std::max(rc, p.r);
-  if (hub_radius > 0) rh = hub_radius;
-  if (casing_radius > 0) rc = casing_radius;
-  if (!(rc > rh)) fail(source, 0, "the casing radius is not larger than the hub radius");
-  b.hub = {{xmin, rh, 0}, {xmax, rh, 0}};
-  b.casing = {{xmin, rc, 0}, {xmax, rc, 0}};
   return b;
 }
 

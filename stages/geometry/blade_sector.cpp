@@ -27,11 +27,14 @@
 #include "stages/cad/occt.hpp"
 #include "stages/cad/tag_rules.hpp"
 #include "stages/geometry/blade_sections.hpp"
+#include "stages/geometry/passage_check.hpp"
+#include "stages/geometry/section_util.hpp"
 
 #include <nlohmann/json.hpp>
 
 #include <BOPAlgo_MakerVolume.hxx>
 #include <BRepBuilderAPI_MakeFace.hxx>
+#include <BRepBuilderAPI_Sewing.hxx>
 #include <BRepCheck_Analyzer.hxx>
 #include <BRepGProp.hxx>
 #include <BRepTools_History.hxx>
@@ -213,233 +216,456 @@ std::string slurp(const std::filesystem::path& p) {
   return ss.str();
 }
 
+BladeSections read_sections(const std::filesystem::path& path, const nlohmann::json& P) {
+  const std::string format = P.at("format").get<std::string>();
+  std::string text = slurp(path);
+  if (format == "rotor67") return parse_rotor67(text, path.string());
+  TableOptions o;
+  o.layout = format == "zrt" ? TableLayout::zrt : TableLayout::xyz;
+  o.angle_unit = P.at("angle_unit").get<std::string>();
+  o.hub_radius = P.at("hub_radius").get<double>();
+  o.casing_radius = P.at("casing_radius").get<double>();
+  return parse_blade_table(text, path.string(), o);
+}
+
+// The result's unit label and the factor from the file's lengths to it: `scale`, times the
+// conversion from the unit the file declares to `units` when both are given and differ.
+std::pair<std::string, double> result_units(const BladeSections& bs, const nlohmann::json& P) {
+  std::string units = P.at("units").get<std::string>();
+  double f = P.at("scale").get<double>();
+  if (units.empty()) units = !bs.units.empty() ? bs.units : bs.format == "rotor67" ? "ft" : "m";
+  else if (!bs.units.empty() && units != bs.units) f *= length_unit_in_m(bs.units) / length_unit_in_m(units);
+  return {units, f};
+}
+
+void scale_sections(BladeSections& bs, double f) {
+  for (auto* set : {&bs.loops, &bs.mean})
+    for (auto& l : *set)
+      for (auto& p : l) p.x *= f, p.r *= f;
+  for (auto* m : {&bs.hub, &bs.casing})
+    for (auto& p : *m) p.x *= f, p.r *= f;
+}
+
+// Radius of a meridian polyline at axial position x (held constant beyond its ends).
+double radius_at(const std::vector<Cyl>& m, double x) {
+  for (size_t j = 0; j + 1 < m.size(); ++j)
+    if (x >= m[j].x && x <= m[j + 1].x) return m[j].r + (x - m[j].x) / (m[j + 1].x - m[j].x) * (m[j + 1].r - m[j].r);
+  return x < m[0].x ? m[0].r : m.back().r;
+}
+
+// Axial frame of the passage: the blade's leading and trailing edges, the planes, the height.
+struct Frame {
+  double xle = 1e300, xte = -1e300, rmax = 0, cax = 0, x_in = 0, x_out = 0, margin = 0, height = 0;
+};
+Frame frame_of(const BladeSections& bs, double up, double down) {
+  Frame F;
+  for (auto& l : bs.loops)
+    for (auto& p : l) F.xle = std::min(F.xle, p.x), F.xte = std::max(F.xte, p.x), F.rmax = std::max(F.rmax, p.r);
+  for (auto& p : bs.casing) F.rmax = std::max(F.rmax, p.r);
+  F.cax = F.xte - F.xle;
+  F.x_in = F.xle - up * F.cax, F.x_out = F.xte + down * F.cax;
+  F.margin = 0.05 * F.cax;
+  F.height = radius_at(bs.casing, F.xle) - radius_at(bs.hub, F.xle);  // blade height at the leading edge
+  if (!(F.height > 0)) throw StageError("blade_sector: the casing is not above the hub at the leading edge");
+  return F;
+}
+
+// The point sets the surfaces interpolate: blade loops and mean lines with one section beyond
+// hub and casing (mean lines to the planes, at -pitch/2), hub and casing meridians to the planes.
+struct PassageLines {
+  std::vector<std::vector<Cyl>> loops, mean;
+  std::vector<Cyl> hub, casing;
+  double ta = 0, tb = 0;           // angular range of the hub and casing faces
+  double f_lo = 0.5, f_hi = 0.5;   // extrapolation factors below the first and above the last section
+};
+
+// How far the blade is extrapolated below the hub and above the casing, in section spacings:
+// half a spacing (streamsurfaces: rotor67), or enough to cross the cylinders by 5% of the height.
+void extension_factors(const BladeSections& bs, const Frame& F, PassageLines& L) {
+  if (bs.format == "rotor67") return;
+  const auto& loops = bs.loops;
+  const size_t ns = loops.size();
+  double rh = bs.hub[0].r, rc = bs.casing[0].r, g0 = 1e300, g1 = 1e300, need0 = 0, need1 = 0;
+  for (size_t i = 0; i < loops[0].size(); ++i) {
+    g0 = std::min(g0, loops[1][i].r - loops[0][i].r);
+    g1 = std::min(g1, loops[ns - 1][i].r - loops[ns - 2][i].r);
+    need0 = std::max(need0, loops[0][i].r - rh + 0.05 * F.height);
+    need1 = std::max(need1, rc - loops[ns - 1][i].r + 0.05 * F.height);
+  }
+  if (!(g0 > 0) || !(g1 > 0))
+    throw StageError("blade_sector: the sections must go from hub to tip with every point's radius increasing from one "
+                     "section to the next (at the first or last pair of sections a point's radius does not increase)");
+  L.f_lo = std::max(0.5, need0 / g0);
+  L.f_hi = std::max(0.5, need1 / g1);
+}
+
+PassageLines passage_lines(const BladeSections& bs, const Frame& F, double pitch) {
+  PassageLines L;
+  extension_factors(bs, F, L);
+  const size_t ns = bs.loops.size();
+  L.loops = bs.loops;
+  L.loops.insert(L.loops.begin(), extrapolate(L.loops[0], L.loops[1], L.f_lo));
+  L.loops.push_back(extrapolate(L.loops[ns], L.loops[ns - 1], L.f_hi));
+  L.mean = bs.mean;
+  fit_axially(L.mean, F.x_in - F.margin, F.x_out + F.margin);
+  auto keep = decimate(L.mean, 0.01);
+  for (auto& l : L.mean) {
+    std::vector<Cyl> d;
+    for (size_t j : keep) d.push_back(l[j]);
+    l = d;
+  }
+  L.mean.insert(L.mean.begin(), extrapolate(L.mean[0], L.mean[1], L.f_lo));
+  L.mean.push_back(extrapolate(L.mean[ns], L.mean[ns - 1], L.f_hi));
+  for (auto& l : L.mean)
+    for (auto& p : l) p.t -= 0.5 * pitch;
+  std::vector<std::vector<Cyl>> hubm = {bs.hub}, casm = {bs.casing};
+  fit_axially(hubm, F.x_in - F.margin, F.x_out + F.margin);
+  fit_axially(casm, F.x_in - F.margin, F.x_out + F.margin);
+  L.hub = hubm[0], L.casing = casm[0];
+  double tmin = 1e300, tmax = -1e300;
+  for (auto& l : L.mean)
+    for (auto& p : l) tmin = std::min(tmin, p.t), tmax = std::max(tmax, p.t + pitch);
+  for (auto& l : L.loops)
+    for (auto& p : l) tmin = std::min(tmin, p.t), tmax = std::max(tmax, p.t);
+  L.ta = tmin - 0.2, L.tb = tmax + 0.2;
+  if (L.tb - L.ta >= 2 * M_PI - 1e-3)
+    throw StageError("blade_sector: the passage (mean lines plus one pitch) turns by more than a full revolution about the axis; "
+                     "check `blades` and the file's angles (format: zrt reads theta in degrees unless the header or "
+                     "angle_unit says rad)");
+  return L;
+}
+
+// A sharp corner of the sections (a sharp trailing edge): the point index where every file
+// section's loop turns by more than 60 degrees and by more than three times as much as at either
+// neighbouring point (unrolled on its mean radius: x, r θ), or -1. Smooth sections turn by 25
+// degrees at most per point (Rotor 67's round edges), a coarsely sampled elliptic nose by large
+// but similar angles at three points in a row; a cambered NACA section with a closed trailing
+// edge turns by 166 degrees there and by a few at its neighbours.
+int sharp_corner(const std::vector<std::vector<Cyl>>& loops) {
+  int corner = -2;
+  for (auto& l : loops) {
+    double rm = 0;
+    for (auto& p : l) rm += p.r / l.size();
+    const size_t n = l.size();
+    std::vector<double> turn(n);
+    for (size_t i = 0; i < n; ++i) {
+      const Cyl &a = l[(i + n - 1) % n], &b = l[i], &c = l[(i + 1) % n];
+      double d1x = b.x - a.x, d1y = rm * (b.t - a.t), d2x = c.x - b.x, d2y = rm * (c.t - b.t);
+      turn[i] = std::abs(std::atan2(d1x * d2y - d1y * d2x, d1x * d2x + d1y * d2y)) * 180 / M_PI;
+    }
+    int best = -1;
+    for (size_t i = 0; i < n; ++i)
+      if (turn[i] > 60 && turn[i] > 3 * std::max(turn[(i + n - 1) % n], turn[(i + 1) % n]) && (best < 0 || turn[i] > turn[best]))
+        best = (int)i;
+    if (best < 0) return -1;
+    if (corner == -2) corner = best;
+    else if (corner != best) return -1;
+  }
+  return corner < 0 ? -1 : corner;
+}
+
+// The Geom surfaces of the seven sides.
+struct Surfaces {
+  Handle(Geom_BSplineSurface) blade, plo, phi;
+  Handle(Geom_SurfaceOfRevolution) hub, cas;
+  std::vector<double> bu, bv;   // blade parameters of the loops' points and sections
+  double section_err = 0;       // largest distance of a file point to the blade surface
+  // A sharp trailing edge (sections' point `corner`): the blade is one non-periodic surface from
+  // the corner round to the corner (C0 there, C2 elsewhere), made two faces split at the leading
+  // edge's parameter `u_le` (tangent-continuous there: one surface). Else one periodic surface.
+  int corner = -1;
+  double u_le = 0;
+};
+
+Surfaces build_surfaces(const PassageLines& L, int corner, double pitch, double tol) {
+  Surfaces S;
+  S.corner = corner;
+  std::vector<std::vector<gp_Pnt>> rows;
+  for (auto& l : L.loops) {
+    rows.emplace_back();
+    const size_t n = l.size();
+    if (corner < 0)
+      for (auto& p : l) rows.back().push_back(cart(p));
+    else
+      for (size_t i = 0; i <= n; ++i) rows.back().push_back(cart(l[(corner + i) % n]));
+  }
+  S.blade = skin(rows, corner < 0, tol, S.bu, S.bv);
+  if (corner >= 0) S.u_le = S.bu[(L.loops[0].size() - corner) % L.loops[0].size()];
+  for (size_t k = 1; k + 1 < rows.size(); ++k)
+    for (size_t i = 0; i < rows[k].size(); ++i)
+      S.section_err = std::max(S.section_err, S.blade->Value(S.bu[i], S.bv[k]).Distance(rows[k][i]));
+  rows.clear();
+  for (auto& l : L.mean) {
+    rows.emplace_back();
+    for (auto& p : l) rows.back().push_back(cart(p));
+  }
+  std::vector<double> pu, pv;
+  S.plo = skin(rows, false, tol, pu, pv);
+  gp_Trsf rot;
+  rot.SetRotation(gp_Ax1(gp_Pnt(0, 0, 0), gp_Dir(1, 0, 0)), pitch);
+  S.phi = Handle(Geom_BSplineSurface)::DownCast(S.plo->Transformed(rot));
+  auto meridian = [&](const std::vector<Cyl>& m) {
+    std::vector<gp_Pnt> p;
+    for (auto& c : m) p.push_back(gp_Pnt(c.x, c.r, 0));
+    return interp(p, chord_params({p}, false), false, tol);
+  };
+  S.hub = new Geom_SurfaceOfRevolution(meridian(L.hub), gp_Ax1(gp_Pnt(0, 0, 0), gp_Dir(1, 0, 0)));
+  S.cas = new Geom_SurfaceOfRevolution(meridian(L.casing), gp_Ax1(gp_Pnt(0, 0, 0), gp_Dir(1, 0, 0)));
+  return S;
+}
+
+constexpr int kSources = 7;
+const char* const kSourceName[kSources] = {"hub", "casing", "inflow", "outflow", "periodic_lo", "periodic_hi", "blade"};
+const Tag kSourceTag[kSources] = {Tag::wall, Tag::wall, Tag::farfield, Tag::farfield, Tag::periodic_lo, Tag::periodic_hi, Tag::wall};
+
+// The boolean's arguments and the surface (0..kSources-1) each comes from.
+struct Faces {
+  std::vector<TopoDS_Face> f;
+  std::vector<int> source;
+};
+
+Faces make_faces(const Surfaces& S, const PassageLines& L, const Frame& F, double tol) {
+  const double R = 1.5 * F.rmax;
+  Faces out;
+  auto add = [&](const TopoDS_Face& f, int s) { out.f.push_back(f), out.source.push_back(s); };
+  add(BRepBuilderAPI_MakeFace(S.hub, L.ta, L.tb, 0, 1, tol), 0);
+  add(BRepBuilderAPI_MakeFace(S.cas, L.ta, L.tb, 0, 1, tol), 1);
+  add(BRepBuilderAPI_MakeFace(gp_Pln(gp_Pnt(F.x_in, 0, 0), gp_Dir(1, 0, 0)), -R, R, -R, R), 2);
+  add(BRepBuilderAPI_MakeFace(gp_Pln(gp_Pnt(F.x_out, 0, 0), gp_Dir(1, 0, 0)), -R, R, -R, R), 3);
+  add(BRepBuilderAPI_MakeFace(S.plo, Precision::Confusion()), 4);
+  add(BRepBuilderAPI_MakeFace(S.phi, Precision::Confusion()), 5);
+  if (S.corner < 0) {
+    add(BRepBuilderAPI_MakeFace(S.blade, Precision::Confusion()), 6);
+  } else {
+    double u0, u1, v0, v1;
+    S.blade->Bounds(u0, u1, v0, v1);
+    // sewn first, so that the two faces share their leading- and trailing-edge edges (the
+    // boolean alone keeps them apart: the blade would not close)
+    // Each face its own segment of the surface: two faces on one surface are merged by heal's
+    // unify into one face whose seam is the crease, which fails OCCT's validity check.
+    BRepBuilderAPI_Sewing sew(Precision::Confusion());
+    for (auto [a, b] : {std::pair{u0, S.u_le}, std::pair{S.u_le, u1}}) {
+      Handle(Geom_BSplineSurface) part = Handle(Geom_BSplineSurface)::DownCast(S.blade->Copy());
+      part->Segment(a, b, v0, v1);
+      sew.Add(BRepBuilderAPI_MakeFace(part, Precision::Confusion()));
+    }
+    sew.Perform();
+    for (TopExp_Explorer ex(sew.SewedShape(), TopAbs_FACE); ex.More(); ex.Next()) add(TopoDS::Face(ex.Current()), 6);
+  }
+  return out;
+}
+
+Cyl cyl_of(const gp_Pnt& p) { return {p.X(), std::hypot(p.Y(), p.Z()), std::atan2(p.Z(), p.Y())}; }
+
+// Points of a surface along u (v fixed) or along v (u fixed), n + 1 of them, angles unwrapped
+// from `t0` (the angle the surface's data starts near).
+std::vector<Cyl> iso(const Handle(Geom_Surface)& s, bool along_u, double fixed, int n, double t0) {
+  double u0, u1, v0, v1;
+  s->Bounds(u0, u1, v0, v1);
+  std::vector<Cyl> out;
+  double last = t0;
+  for (int i = 0; i <= n; ++i) {
+    double w = (double)i / n;
+    gp_Pnt p = along_u ? s->Value(u0 + w * (u1 - u0), fixed) : s->Value(fixed, v0 + w * (v1 - v0));
+    Cyl c = cyl_of(p);
+    c.t += 2 * M_PI * std::round((last - c.t) / (2 * M_PI));
+    last = c.t;
+    out.push_back(c);
+  }
+  return out;
+}
+
+// The samples passage_check needs: meridians, the blade's and periodic_lo's boundary curves, the
+// file's sections and periodic_lo's rows through them.
+PassageSamples sample_passage(const Surfaces& S, const PassageLines& L, const BladeSections& bs, const Frame& F,
+                              double pitch, const std::string& units) {
+  PassageSamples ps;
+  ps.units = units, ps.pitch = pitch, ps.x_in = F.x_in, ps.x_out = F.x_out, ps.height = F.height;
+  ps.ta = L.ta, ps.tb = L.tb;
+  double u0, u1, v0, v1;
+  S.hub->Bounds(u0, u1, v0, v1);
+  ps.hub = iso(S.hub, false, 0.0, 1000, 0);
+  ps.casing = iso(S.cas, false, 0.0, 1000, 0);
+  for (auto* m : {&ps.hub, &ps.casing})
+    for (auto& p : *m) p.t = 0;
+  S.blade->Bounds(u0, u1, v0, v1);
+  ps.blade_root = iso(S.blade, true, v0, 800, L.loops.front()[0].t);
+  ps.blade_tip = iso(S.blade, true, v1, 800, L.loops.back()[0].t);
+  S.plo->Bounds(u0, u1, v0, v1);
+  ps.periodic_root = iso(S.plo, true, v0, 800, L.mean.front()[0].t);
+  ps.periodic_tip = iso(S.plo, true, v1, 800, L.mean.back()[0].t);
+  ps.periodic_in = iso(S.plo, false, u0, 400, L.mean.front()[0].t);
+  ps.periodic_out = iso(S.plo, false, u1, 400, L.mean.front().back().t);
+  ps.sections = bs.loops;
+  ps.periodic_rows.assign(L.mean.begin() + 1, L.mean.end() - 1);
+  return ps;
+}
+
+[[noreturn]] void refuse(const std::vector<Finding>& found, const std::string& path) {
+  std::string m = "blade_sector: the passage cannot close with the surfaces from '" + path + "': ";
+  int n = 0;
+  for (auto& f : found)
+    if (f.fatal) m += (n++ ? "; also " : "") + f.text;
+  throw StageError(m);
+}
+
+// What the surface checks found, for a message when the boolean fails anyway.
+std::string findings_text(const std::vector<Finding>& found, const PassageSamples& ps) {
+  std::string t;
+  for (auto& f : found) t += " " + f.text + ".";
+  return t + " " + passage_margins(ps);
+}
+
+// The fluid: the solid of the boolean bounded by both periodic faces, with each face's tag.
+struct Sector {
+  TopoDS_Shape fluid;
+  std::vector<Tag> tags;
+  int faces_by_source[kSources] = {0, 0, 0, 0, 0, 0, 0};
+};
+
+Sector make_sector(StageContext& ctx, const Faces& src, const std::string& diag) {
+  BOPAlgo_MakerVolume mv;
+  TopTools_ListOfShape args;
+  for (auto& f : src.f) args.Append(f);
+  mv.SetArguments(args);
+  mv.SetRunParallel(false);
+  mv.SetIntersect(true);
+  mv.Perform();
+  if (mv.HasErrors())
+    throw StageError("blade_sector: building the sector from hub, casing, planes, periodic and blade surfaces failed "
+                     "(OCCT BOPAlgo_MakerVolume); check upstream/downstream and the section file." + diag);
+  Handle(BRepTools_History) hist = mv.History();
+  auto source_of = [&](const TopoDS_Shape& f) {
+    for (size_t i = 0; i < src.f.size(); ++i) {
+      if (f.IsSame(src.f[i])) return src.source[i];
+      for (TopTools_ListIteratorOfListOfShape it(hist->Modified(src.f[i])); it.More(); it.Next())
+        if (it.Value().IsSame(f)) return src.source[i];
+    }
+    return -1;
+  };
+  std::vector<TopoDS_Shape> solids;
+  for (TopExp_Explorer ex(mv.Shape(), TopAbs_SOLID); ex.More(); ex.Next()) solids.push_back(ex.Current());
+  int chosen = -1;
+  for (size_t i = 0; i < solids.size(); ++i) {
+    bool has_lo = false, has_hi = false;
+    for (TopExp_Explorer ex(solids[i], TopAbs_FACE); ex.More(); ex.Next()) {
+      int s = source_of(ex.Current());
+      has_lo |= s == 4, has_hi |= s == 5;
+    }
+    if (has_lo && has_hi) {
+      if (chosen >= 0) throw StageError("blade_sector: more than one passage volume (internal error)." + diag);
+      chosen = (int)i;
+    }
+  }
+  if (chosen < 0)
+    throw StageError("blade_sector: the periodic, hub, casing and inflow/outflow surfaces do not close a passage volume (" +
+                     std::to_string(solids.size()) + " volume(s) found)." + diag);
+  for (size_t i = 0; i < solids.size(); ++i) {
+    std::string d = "blade_sector: volume " + std::to_string(i) + " faces from:";
+    for (TopExp_Explorer ex(solids[i], TopAbs_FACE); ex.More(); ex.Next()) d += " " + std::to_string(source_of(ex.Current()));
+    ctx.log(d);
+  }
+  Sector out;
+  out.fluid = solids[chosen];
+  TopTools_IndexedMapOfShape faces;
+  TopExp::MapShapes(out.fluid, TopAbs_FACE, faces);
+  for (int i = 1; i <= faces.Extent(); ++i) {
+    int s = source_of(faces(i));
+    if (s < 0) throw StageError("blade_sector: a face of the passage has no known origin (internal error)");
+    out.tags.push_back(kSourceTag[s]);
+    out.faces_by_source[s]++;
+  }
+  std::string counts;
+  for (int s = 0; s < kSources; ++s) counts += std::string(s ? ", " : "") + kSourceName[s] + " " + std::to_string(out.faces_by_source[s]);
+  for (int s = 0; s < kSources; ++s)
+    if (out.faces_by_source[s] == 0)
+      throw StageError(std::string("blade_sector: the passage has no ") + kSourceName[s] + " face (faces per surface: " + counts +
+                       "): the surfaces do not bound the passage as expected; check upstream/downstream." + diag);
+  return out;
+}
+
 void run(StageContext& ctx) {
   const auto& P = ctx.params();
-  std::string name = P.at("file").get<std::string>();
-  auto path = ctx.file(name);
-  std::string format = P.at("format").get<std::string>();
-  double scale = P.at("scale").get<double>();
+  auto path = ctx.file(P.at("file").get<std::string>());
   double up = P.at("upstream").get<double>(), down = P.at("downstream").get<double>();
-  std::string units = P.at("units").get<std::string>();
 
   ctx.progress(0.0, "reading sections");
-  std::string text = slurp(path);
-  BladeSections bs = format == "csv"
-                         ? parse_blade_csv(text, path.string(), P.at("hub_radius").get<double>() , P.at("casing_radius").get<double>())
-                         : parse_rotor67(text, path.string());
-  if (units.empty()) units = format == "csv" ? "m" : "ft";
+  BladeSections bs = read_sections(path, P);
+  for (auto& n : bs.notes) ctx.log("blade_sector: " + n);
+  auto [units, factor] = result_units(bs, P);
   int N = P.at("blades").get<int>();
   if (N == 0) N = bs.blades;
   if (N <= 0)
     throw StageError("blade_sector: the number of blades is not in the file '" + path.string() + "': set `blades:`");
   const double pitch = 2 * M_PI / N;
-  for (auto* set : {&bs.loops, &bs.mean})
-    for (auto& l : *set)
-      for (auto& p : l) p.x *= scale, p.r *= scale;
-  for (auto* m : {&bs.hub, &bs.casing})
-    for (auto& p : *m) p.x *= scale, p.r *= scale;
-
-  double xle = 1e300, xte = -1e300, rmax = 0;
-  for (auto& l : bs.loops)
-    for (auto& p : l) xle = std::min(xle, p.x), xte = std::max(xte, p.x), rmax = std::max(rmax, p.r);
-  for (auto& p : bs.casing) rmax = std::max(rmax, p.r);
-  const double cax = xte - xle;
-  const double x_in = xle - up * cax, x_out = xte + down * cax;
-  const double margin = 0.05 * cax;
-  double height = 0;  // blade height at the leading edge: casing minus hub radius
-  {
-    auto at = [](const std::vector<Cyl>& m, double x) {
-      for (size_t j = 0; j + 1 < m.size(); ++j)
-        if (x >= m[j].x && x <= m[j + 1].x) return m[j].r + (x - m[j].x) / (m[j + 1].x - m[j].x) * (m[j + 1].r - m[j].r);
-      return x < m[0].x ? m[0].r : m.back().r;
-    };
-    height = at(bs.casing, xle) - at(bs.hub, xle);
-  }
-  if (!(height > 0)) throw StageError("blade_sector: the casing is not above the hub at the leading edge");
-  const double tol = 1e-12 * rmax;
-
-  // blade loops with one section beyond hub and casing
-  std::vector<std::vector<Cyl>> loops = bs.loops;
-  const size_t ns = loops.size();
-  double f_lo = 0.5, f_hi = 0.5;
-  if (bs.format == "csv") {  // cylinders: make sure the extension crosses them by 5% of the height
-    double rh = bs.hub[0].r, rc = bs.casing[0].r, g0 = 1e300, g1 = 1e300, need0 = 0, need1 = 0;
-    for (size_t i = 0; i < loops[0].size(); ++i) {
-      g0 = std::min(g0, loops[1][i].r - loops[0][i].r);
-      g1 = std::min(g1, loops[ns - 1][i].r - loops[ns - 2][i].r);
-      need0 = std::max(need0, loops[0][i].r - rh + 0.05 * height);
-      need1 = std::max(need1, rc - loops[ns - 1][i].r + 0.05 * height);
-    }
-    if (!(g0 > 0) || !(g1 > 0))
-      throw StageError("blade_sector: the CSV sections must go from hub to tip with every point's radius increasing from one section to the next");
-    f_lo = std::max(0.5, need0 / g0);
-    f_hi = std::max(0.5, need1 / g1);
-  }
-  loops.insert(loops.begin(), extrapolate(loops[0], loops[1], f_lo));
-  loops.push_back(extrapolate(loops[ns], loops[ns - 1], f_hi));
-
-  // mean lines: to the inflow/outflow planes, decimated, beyond hub and casing, at -pitch/2
-  std::vector<std::vector<Cyl>> mean = bs.mean;
-  fit_axially(mean, x_in - margin, x_out + margin);
-  auto keep = decimate(mean, 0.01);
-  for (auto& l : mean) {
-    std::vector<Cyl> d;
-    for (size_t j : keep) d.push_back(l[j]);
-    l = d;
-  }
-  mean.insert(mean.begin(), extrapolate(mean[0], mean[1], f_lo));
-  mean.push_back(extrapolate(mean[ns], mean[ns - 1], f_hi));
-  for (auto& l : mean)
-    for (auto& p : l) p.t -= 0.5 * pitch;
-  std::vector<std::vector<Cyl>> hubm = {bs.hub}, casm = {bs.casing};
-  fit_axially(hubm, x_in - margin, x_out + margin);
-  fit_axially(casm, x_in - margin, x_out + margin);
-
-  double tmin = 1e300, tmax = -1e300;
-  for (auto& l : mean)
-    for (auto& p : l) tmin = std::min(tmin, p.t), tmax = std::max(tmax, p.t + pitch);
-  for (auto& l : loops)
-    for (auto& p : l) tmin = std::min(tmin, p.t), tmax = std::max(tmax, p.t);
-  const double ta = tmin - 0.2, tb = tmax + 0.2;
-  if (tb - ta >= 2 * M_PI - 1e-3)
-    throw StageError("blade_sector: the passage (mean lines plus one pitch) turns by more than a full revolution about the axis; "
-                     "check `blades` and the file's angles");
+  scale_sections(bs, factor);
+  const Frame F = frame_of(bs, up, down);
+  const double tol = 1e-12 * F.rmax;
+  const PassageLines L = passage_lines(bs, F, pitch);
 
   cad::occt::Log log([&](const std::string& s) { ctx.log(s); });
   ctx.progress(0.1, "blade surface");
-  TopoDS_Shape fluid;
-  std::vector<Tag> tags;
+  Sector sector;
   double section_err = 0;
-  int nfaces_by_source[7] = {0, 0, 0, 0, 0, 0, 0};
+  int sharp = -1;
+  std::vector<Finding> found;
   try {
-    std::vector<std::vector<gp_Pnt>> rows;
-    for (auto& l : loops) {
-      rows.emplace_back();
-      for (auto& p : l) rows.back().push_back(cart(p));
-    }
-    std::vector<double> bu, bv, pu, pv;
-    Handle(Geom_BSplineSurface) blade = skin(rows, true, tol, bu, bv);
-    for (size_t k = 1; k + 1 < rows.size(); ++k)
-      for (size_t i = 0; i < rows[k].size(); ++i)
-        section_err = std::max(section_err, blade->Value(bu[i], bv[k]).Distance(rows[k][i]));
-    rows.clear();
-    for (auto& l : mean) {
-      rows.emplace_back();
-      for (auto& p : l) rows.back().push_back(cart(p));
-    }
-    ctx.progress(0.25, "periodic surfaces");
-    Handle(Geom_BSplineSurface) plo = skin(rows, false, tol, pu, pv);
-    gp_Trsf rot;
-    rot.SetRotation(gp_Ax1(gp_Pnt(0, 0, 0), gp_Dir(1, 0, 0)), pitch);
-    Handle(Geom_BSplineSurface) phi = Handle(Geom_BSplineSurface)::DownCast(plo->Transformed(rot));
-
-    auto meridian = [&](const std::vector<Cyl>& m) {
-      std::vector<gp_Pnt> p;
-      for (auto& c : m) p.push_back(gp_Pnt(c.x, c.r, 0));
-      return interp(p, chord_params({p}, false), false, tol);
-    };
-    Handle(Geom_SurfaceOfRevolution) hub = new Geom_SurfaceOfRevolution(meridian(hubm[0]), gp_Ax1(gp_Pnt(0, 0, 0), gp_Dir(1, 0, 0)));
-    Handle(Geom_SurfaceOfRevolution) cas = new Geom_SurfaceOfRevolution(meridian(casm[0]), gp_Ax1(gp_Pnt(0, 0, 0), gp_Dir(1, 0, 0)));
-    const double R = 1.5 * rmax;
-    std::vector<TopoDS_Face> src(7);
-    src[0] = BRepBuilderAPI_MakeFace(hub, ta, tb, 0, 1, tol);
-    src[1] = BRepBuilderAPI_MakeFace(cas, ta, tb, 0, 1, tol);
-    src[2] = BRepBuilderAPI_MakeFace(gp_Pln(gp_Pnt(x_in, 0, 0), gp_Dir(1, 0, 0)), -R, R, -R, R);
-    src[3] = BRepBuilderAPI_MakeFace(gp_Pln(gp_Pnt(x_out, 0, 0), gp_Dir(1, 0, 0)), -R, R, -R, R);
-    src[4] = BRepBuilderAPI_MakeFace(plo, Precision::Confusion());
-    src[5] = BRepBuilderAPI_MakeFace(phi, Precision::Confusion());
-    src[6] = BRepBuilderAPI_MakeFace(blade, Precision::Confusion());
-    const Tag src_tag[7] = {Tag::wall, Tag::wall, Tag::farfield, Tag::farfield, Tag::periodic_lo, Tag::periodic_hi, Tag::wall};
-
+    const int corner = sharp_corner(bs.loops);
+    if (corner >= 0)
+      ctx.log("blade_sector: the sections have a sharp corner at point " + std::to_string(corner + 1) +
+              " (a sharp trailing edge): the blade is two faces meeting there, split at the leading edge");
+    Surfaces S = build_surfaces(L, corner, pitch, tol);
+    sharp = corner;
+    section_err = S.section_err;
+    ctx.progress(0.3, "surface checks");
+    PassageSamples ps = sample_passage(S, L, bs, F, pitch, units);
+    found = check_passage(ps);
+    for (auto& f : found) ctx.log(std::string("blade_sector: ") + (f.fatal ? "fails: " : "note: ") + f.surface + ": " + f.text);
+    ctx.log("blade_sector: " + passage_margins(ps));
+    if (!found.empty() && found.front().fatal) refuse(found, path.string());
     ctx.progress(0.35, "sector (boolean)");
-    BOPAlgo_MakerVolume mv;
-    TopTools_ListOfShape args;
-    for (auto& f : src) args.Append(f);
-    mv.SetArguments(args);
-    mv.SetRunParallel(false);
-    mv.SetIntersect(true);
-    mv.Perform();
-    if (mv.HasErrors())
-      throw StageError("blade_sector: building the sector from hub, casing, planes, periodic and blade surfaces failed "
-                       "(OCCT BOPAlgo_MakerVolume); check upstream/downstream and the section file");
-    // the fluid: the solid bounded by the periodic faces
-    Handle(BRepTools_History) hist = mv.History();
-    auto source_of = [&](const TopoDS_Shape& f) {
-      for (int s = 0; s < 7; ++s) {
-        if (f.IsSame(src[s])) return s;
-        for (TopTools_ListIteratorOfListOfShape it(hist->Modified(src[s])); it.More(); it.Next())
-          if (it.Value().IsSame(f)) return s;
-      }
-      return -1;
-    };
-    std::vector<TopoDS_Shape> solids;
-    for (TopExp_Explorer ex(mv.Shape(), TopAbs_SOLID); ex.More(); ex.Next()) solids.push_back(ex.Current());
-    int chosen = -1;
-    for (size_t i = 0; i < solids.size(); ++i) {
-      bool has_lo = false, has_hi = false;
-      for (TopExp_Explorer ex(solids[i], TopAbs_FACE); ex.More(); ex.Next()) {
-        int s = source_of(ex.Current());
-        has_lo |= s == 4, has_hi |= s == 5;
-      }
-      if (has_lo && has_hi) {
-        if (chosen >= 0) throw StageError("blade_sector: more than one passage volume (internal error)");
-        chosen = (int)i;
-      }
-    }
-    if (chosen < 0)
-      throw StageError("blade_sector: the periodic, hub, casing and inflow/outflow surfaces do not close a passage volume (" +
-                       std::to_string(solids.size()) + " volume(s) found); check upstream/downstream and the section file");
-    fluid = solids[chosen];
-    for (size_t i = 0; i < solids.size(); ++i) {
-      std::string d = "blade_sector: volume " + std::to_string(i) + " faces from:";
-      for (TopExp_Explorer ex(solids[i], TopAbs_FACE); ex.More(); ex.Next()) d += " " + std::to_string(source_of(ex.Current()));
-      ctx.log(d);
-    }
-    TopTools_IndexedMapOfShape faces;
-    TopExp::MapShapes(fluid, TopAbs_FACE, faces);
-    for (int i = 1; i <= faces.Extent(); ++i) {
-      int s = source_of(faces(i));
-      if (s < 0) throw StageError("blade_sector: a face of the passage has no known origin (internal error)");
-      tags.push_back(src_tag[s]);
-      nfaces_by_source[s]++;
-    }
+    sector = make_sector(ctx, make_faces(S, L, F, tol), findings_text(found, ps));
   } catch (const Standard_Failure& e) {
     throw StageError(std::string("blade_sector: OpenCASCADE failed building the sector (") + e.GetMessageString() +
                      "); check the section file and the parameters");
   }
-  static const char* src_name[7] = {"hub", "casing", "inflow", "outflow", "periodic_lo", "periodic_hi", "blade"};
-  for (int s = 0; s < 7; ++s)
-    if (nfaces_by_source[s] == 0)
-      throw StageError(std::string("blade_sector: the passage has no ") + src_name[s] + " face (faces per surface hub, casing, inflow, outflow, periodic_lo, periodic_hi, blade: " + std::to_string(nfaces_by_source[0]) + std::to_string(nfaces_by_source[1]) + std::to_string(nfaces_by_source[2]) + std::to_string(nfaces_by_source[3]) + std::to_string(nfaces_by_source[4]) + std::to_string(nfaces_by_source[5]) + std::to_string(nfaces_by_source[6]) + ")" +
-                       " face: the surfaces do not bound the passage as expected; check upstream/downstream");
   ctx.progress(0.85, "checking");
-  if (!BRepCheck_Analyzer(fluid).IsValid())
+  if (!BRepCheck_Analyzer(sector.fluid).IsValid())
     throw StageError("blade_sector: the passage solid is not valid (BRepCheck); report it with the section file");
-  cad::Shape shape = cad::occt::make_shape(fluid, units, tags);
+  cad::Shape shape = cad::occt::make_shape(sector.fluid, units, sector.tags);
   if (!shape.free_edges().empty() || !shape.multiple_edges().empty())
-    throw StageError("blade_sector: the passage solid is not watertight; report it with the section file");
+    throw StageError("blade_sector: the passage solid is not watertight (" + std::to_string(shape.free_edges().size()) +
+                     " free and " + std::to_string(shape.multiple_edges().size()) +
+                     " multiple edges); report it with the section file");
   cad::apply_tag_rules(shape, P.at("tag_overrides"), "blade_sector stage '" + ctx.stage_name() + "'");
   auto& st = ctx.stats();
   st = cad::occt::summarize(shape);
   st["format"] = bs.format;
   st["blades"] = N;
-  st["sections"] = (int)ns;
+  st["sections"] = (int)bs.loops.size();
   st["points_per_section"] = (int)bs.loops[0].size();
-  st["blade_height"] = height;
-  st["axial_chord"] = cax;
-  st["inflow_x"] = x_in;
-  st["outflow_x"] = x_out;
+  st["blade_height"] = F.height;
+  st["axial_chord"] = F.cax;
+  st["inflow_x"] = F.x_in;
+  st["outflow_x"] = F.x_out;
   st["section_points_max_error"] = section_err;
   nlohmann::json by = nlohmann::json::object();
-  for (int s = 0; s < 7; ++s) by[src_name[s]] = nfaces_by_source[s];
+  for (int s = 0; s < kSources; ++s) by[kSourceName[s]] = sector.faces_by_source[s];
   st["faces_by_surface"] = by;
+  if (bs.resampled_from > 0) st["sections_resampled_from"] = bs.resampled_from;
+  if (sharp >= 0) st["sharp_trailing_edge_point"] = sharp + 1;
+  if (!found.empty()) {
+    nlohmann::json notes = nlohmann::json::array();
+    for (auto& f : found) notes.push_back(f.text);
+    st["surface_notes"] = notes;
+  }
   shape.save(ctx.output("shape", "shape"));
   ctx.progress(1.0, "done");
 }
 
 StageRegistrar reg({.kind = "blade_sector",
                     .version = 1,
-                    .summary = "blade lofted through file sections (Rotor 67, CSV) on a hub in a 2pi/N periodic sector",
+                    .summary = "blade lofted through file sections (Rotor 67, CSV, Z/R/theta) on a hub in a 2pi/N periodic sector",
                     .libraries = {"OCCT " OCC_VERSION_COMPLETE},
                     .run = run});
 }  // namespace

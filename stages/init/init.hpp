@@ -3,6 +3,7 @@
 #pragma once
 
 #include "stages/cad/cad.hpp"
+#include "stages/geometry/blade_sections.hpp"
 
 #include <string>
 #include <vector>
@@ -47,6 +48,36 @@ struct Choices {
   std::string farfield_why;
 };
 Choices choose(const Analysis& a);
+
+// A blade row's figures, measured on its sections in the result's unit (`to_result` converts the
+// file's lengths), for the layer thickness and the wall sizes.
+struct BladeFigures {
+  int blades = 0;
+  double pitch_angle = 0;           // 2π/N
+  double chord = 0;                 // the shortest section chord
+  int chord_section = 0;
+  double le_radius = 0;             // the smallest leading-edge radius of curvature
+  int le_section = 0;
+  double min_radius = 0;            // the smallest radius of curvature anywhere on a section
+  int min_radius_section = 0;
+  double throat = 0;                // nearest distance to the neighbouring blade, one pitch round
+  int throat_section = 0;
+  double throat_radius = 0;         // mean radius of that section
+  double height = 0, hub_radius = 0;
+  // The blade's widest angle from its camber line (half its angular thickness) and where: more
+  // than floor(π / half_angle) blades do not fit round the row.
+  double half_angle = 0;
+  int half_angle_section = 0;
+  double half_angle_radius = 0;
+  int max_blades = 0;
+};
+BladeFigures measure_blade(const geometry::BladeSections& bs, int blades, double to_result);
+
+struct BladeChoices {
+  double thickness = 0, min_size = 0, max_size = 0;  // lengths in the result's unit
+  std::string thickness_why, min_size_why, max_size_why;
+};
+BladeChoices choose_blade(const BladeFigures& f);
 
 // A figure for the workflow's comments (4 significant digits).
 std::string fmt(double v);

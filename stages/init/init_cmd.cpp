@@ -5,6 +5,7 @@
 #include "engine/stage.hpp"
 #include "stages/geometry/blade_sections.hpp"
 #include "stages/geometry/import.hpp"
+#include "stages/geometry/section_util.hpp"
 #include "stages/init/init.hpp"
 
 #include <cctype>
@@ -171,39 +172,71 @@ bool is_section_file(const fs::path& p) {
   return e == ".csv" || e == ".dat" || e == ".txt";
 }
 
+// The figures line of a blade workflow's header.
+std::string blade_figures_text(const BladeFigures& f, const std::string& u) {
+  return "# Measured: shortest chord " + fmt(f.chord) + " " + u + " (section " + std::to_string(f.chord_section + 1) +
+         "), leading-edge radius " + fmt(f.le_radius) + " (section " + std::to_string(f.le_section + 1) +
+         "), smallest radius of curvature " + fmt(f.min_radius) + " (section " + std::to_string(f.min_radius_section + 1) +
+         "),\n# narrowest throat to the next blade " + fmt(f.throat) + " (section " + std::to_string(f.throat_section + 1) +
+         ", pitch 2*pi*r/N = " + fmt(f.throat_radius * f.pitch_angle) + "), blade height " + fmt(f.height) + " " + u + ".\n";
+}
+
 std::string blade_workflow_text(const Options& o) {
   std::ifstream in(o.cad, std::ios::binary);
   if (!in) throw StageError("cannot read the section file '" + o.cad.string() + "'");
   std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   const bool rotor67 = geometry::is_rotor67_export(text);
+  const auto layout = geometry::detect_table_layout(text);
+  const std::string format = rotor67 ? "rotor67" : layout == geometry::TableLayout::zrt ? "zrt" : "csv";
   geometry::BladeSections bs = rotor67 ? geometry::parse_rotor67(text, o.cad.string())
-                                       : geometry::parse_blade_csv(text, o.cad.string());
+                                       : geometry::parse_blade_table(text, o.cad.string(), {layout, "", 0, 0});
   int blades = o.blades ? o.blades : bs.blades;
   if (blades <= 0)
     throw StageError("the section file does not say how many blades the row has: give --blades N");
-  double hub = 1e300, casing = 0, x0 = 1e300, x1 = -1e300;
+  // the result's unit: --units, else the file's declared one (rotor67: ft; an undeclared table: m)
+  const std::string file_units = !bs.units.empty() ? bs.units : rotor67 ? "ft" : "";
+  const std::string u = !o.units.empty() ? o.units : !file_units.empty() ? file_units : "m";
+  const double to_result = !bs.units.empty() && !o.units.empty() && o.units != bs.units
+                               ? geometry::length_unit_in_m(bs.units) / geometry::length_unit_in_m(o.units) : 1.0;
+  const BladeFigures f = measure_blade(bs, blades, to_result);
+  if (blades > f.max_blades)
+    throw StageError(std::to_string(blades) + " blades do not fit round the row: at section " +
+                     std::to_string(f.half_angle_section + 1) + " (radius " + fmt(f.half_angle_radius) + " " + u +
+                     ") the blade spans " + fmt(2 * f.half_angle * 180 / 3.14159265358979323846) +
+                     " degrees about the axis, more than the pitch 360/N = " + fmt(360.0 / blades) +
+                     " degrees; give --blades " + std::to_string(f.max_blades) + " or fewer (neighbouring blades would overlap)");
+  const BladeChoices c = choose_blade(f);
+  double x0 = 1e300, x1 = -1e300, hub = 1e300, casing = 0;
   for (auto& l : bs.loops)
     for (auto& p : l) hub = std::min(hub, p.r), casing = std::max(casing, p.r), x0 = std::min(x0, p.x), x1 = std::max(x1, p.x);
-  const std::string u = o.units.empty() ? (rotor67 ? "ft" : "m") : o.units;
+  const double cax = (x1 - x0) * to_result;
+  const char* what = rotor67 ? "NASA Rotor 67 export" : format == "zrt" ? "z, r, theta table" : "x, y, z table";
   std::ostringstream y;
   y << "# Written by `meshflow init " << o.cad.filename().string() << "`: a blade row of " << blades << " blades, "
-    << bs.loops.size() << " sections (" << (rotor67 ? "NASA Rotor 67 export" : "CSV") << "), in " << u << ".\n"
-    << "# Blade: radius " << fmt(hub) << " to " << fmt(casing) << ", axial extent " << fmt(x1 - x0) << " " << u
+    << bs.loops.size() << " sections (" << what << "), in " << u
+    << (file_units.empty() && o.units.empty() ? " (the file does not say: '# units: cm' or --units U)" : "") << ".\n"
+    << "# Blade: radius " << fmt(hub * to_result) << " to " << fmt(casing * to_result) << ", axial extent " << fmt(cax) << " " << u
     << "; one passage, a 2*pi/" << blades << " sector with periodic sides.\n"
-    << "# Change any value and `meshflow run` reruns only the stages it affects.\n"
+    << blade_figures_text(f, u);
+  for (auto& n : bs.notes) y << "# Read: " << n << ".\n";
+  y << "# Change any value and `meshflow run` reruns only the stages it affects.\n"
     << "meshflow: 1\n"
     << "name: " << workflow_name(o.cad) << "\n"
     << "stages:\n";
-  y << comment("Inflow and outflow planes one axial chord (" + fmt(x1 - x0) + " " + u + ") from the blade; " +
+  y << comment("Inflow and outflow planes one axial chord (" + fmt(cax) + " " + u + ") from the blade; " +
                (o.blades ? "--blades " + std::to_string(blades) : "the file's " + std::to_string(blades) + " blades") + ".")
-    << "  geometry:\n    kind: blade_sector\n    with: {file: " << input_path(o) << ", format: " << (rotor67 ? "rotor67" : "csv")
+    << "  geometry:\n    kind: blade_sector\n    with: {file: " << input_path(o) << ", format: " << format
     << ", blades: " << blades << (o.units.empty() ? "" : ", units: " + o.units) << ", upstream: 1.0, downstream: 1.0}\n"
     << "  heal: {kind: heal, needs: [geometry]}\n"
     << "  medial: {kind: medial, needs: [heal]}\n";
-  y << comment("Layer thickness 2% and smallest wall element 0.1% of the walls' largest side (blade, hub and casing): "
-               "the values Rotor 67 runs valid with; the shell thins the layer where walls face each other closer.")
-    << "  shell: {kind: shell, needs: [heal, medial], with: {thickness: 0.02, topology: C}}\n"
-    << "  balance: {kind: balance, needs: [heal, shell], with: {turn_angle_deg: 30, min_size: 0.001}}\n";
+  y << comment("Layer thickness " + fmt(c.thickness) + " " + u + ": " + c.thickness_why +
+               "; the shell thins the layer where walls face each other closer.")
+    << "  shell: {kind: shell, needs: [heal, medial], with: {thickness: " << fmt(c.thickness)
+    << ", thickness_relative_to: length, topology: C}}\n";
+  y << comment("Wall element sizes: min_size " + fmt(c.min_size) + " " + u + ", " + c.min_size_why + "; max_size " +
+               fmt(c.max_size) + " " + u + ", " + c.max_size_why + ".")
+    << "  balance: {kind: balance, needs: [heal, shell], with: {turn_angle_deg: 30, sizes_relative_to: length, min_size: "
+    << fmt(c.min_size) << ", max_size: " << fmt(c.max_size) << "}}\n";
   y << comment("The periodic sides get the same surface mesh, rotated by 2*pi/" + std::to_string(blades) + ".")
     << "  periodic_match: {kind: periodic_match, needs: [heal, balance]}\n"
     << "  sweep: {kind: sweep, needs: [heal, shell, balance, periodic_match]}\n"

@@ -12,6 +12,7 @@
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <array>
 #include <cstdio>
 #include <cstdlib>
 #include <chrono>
@@ -167,10 +168,14 @@ struct Stage {
         I.nu.push_back(nn);
       }
       if (I.kind == EdgeKind::seam) continue;
-      // in-face directions perpendicular to the edge; the sign is decided at the middle station
+      // In-face directions perpendicular to the edge, their signs, and whether the edge is concave
+      // are decided at one station: the middle one, unless it disagrees with the majority of nine
+      // stations spread along the edge; then the station nearest the middle that agrees. A single
+      // station can sit on a crease of a face (a blade's sharp trailing edge, where a loop edge
+      // round the blade's tip meets the casing: the normals there are the crease's, and the edge
+      // read as convex lost its junction blocks).
       auto tangent = [&](int k) { return unit(v3(shape.edge_eval(e, I.t[k]).d1)); };
-      auto side_sign = [&](int f) {
-        int k = n / 2;
+      auto side_sign = [&](int f, int k) {
         Vec3 c = unit(cross(tangent(k), I.nu[k][f]));
         auto d = shape.face_eval(f, I.uv[k][f].u, I.uv[k][f].v);
         Vec3 su = v3(d.du), sv = v3(d.dv);
@@ -187,14 +192,36 @@ struct Stage {
         Vec3 mid = mul(add(v3(bx.lo), v3(bx.hi)), 0.5);
         return dot(sub(mid, I.p[k]), c) >= 0 ? 1.0 : -1.0;
       };
-      I.sign_a = side_sign(I.a);
-      I.sign_b = side_sign(I.b);
-      for (int k = 0; k < n; ++k) {
-        Vec3 T = tangent(k);
-        I.ma.push_back(mul(unit(cross(T, I.nu[k][I.a])), I.sign_a));
-        I.mb.push_back(mul(unit(cross(T, I.nu[k][I.b])), I.sign_b));
+      // a station's reading: the two signs and concavity
+      auto reading = [&](int k) {
+        double sa = side_sign(I.a, k), sb = side_sign(I.b, k);
+        Vec3 mb = mul(unit(cross(tangent(k), I.nu[k][I.b])), sb);
+        return std::array<int, 3>{sa > 0, sb > 0, dot(I.nu[k][I.a], mb) > 1e-9};
+      };
+      std::array<int, 3> votes{0, 0, 0};
+      for (int i = 1; i <= 9; ++i) {
+        auto r9 = reading(i * (n - 1) / 10);
+        for (int j = 0; j < 3; ++j) votes[j] += r9[j];
       }
+      const std::array<int, 3> major{votes[0] >= 5, votes[1] >= 5, votes[2] >= 5};
       int k = n / 2;
+      for (int d = 0; d <= n / 2; ++d) {
+        if (k - d >= 0 && reading(k - d) == major) {
+          k -= d;
+          break;
+        }
+        if (k + d < n && reading(k + d) == major) {
+          k += d;
+          break;
+        }
+      }
+      I.sign_a = side_sign(I.a, k);
+      I.sign_b = side_sign(I.b, k);
+      for (int j = 0; j < n; ++j) {
+        Vec3 T = tangent(j);
+        I.ma.push_back(mul(unit(cross(T, I.nu[j][I.a])), I.sign_a));
+        I.mb.push_back(mul(unit(cross(T, I.nu[j][I.b])), I.sign_b));
+      }
       double c = std::clamp(dot(I.ma[k], I.mb[k]), -1.0, 1.0);
       double a0 = std::acos(c) * 180 / M_PI;
       I.concave = dot(I.nu[k][I.a], I.mb[k]) > 1e-9;

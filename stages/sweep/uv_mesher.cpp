@@ -7,6 +7,7 @@
 #include <CGAL/Triangulation_vertex_base_with_info_2.h>
 
 #include <algorithm>
+#include <cstdio>
 #include <cmath>
 #include <list>
 #include <map>
@@ -201,6 +202,30 @@ class UVMesher {
     return tq(tr[0], tr[1], tr[2]);
   }
 
+  // ", first between boundary points i-j and k-l at (x, y, z)": the first pair of boundary
+  // segments (in input order) that cross in the parameter plane, for the message.
+  std::string first_crossing() const {
+    auto orient = [&](int a, int b, int c) {
+      const auto &A = in.uv[a], &B = in.uv[b], &C = in.uv[c];
+      double d = (B[0] - A[0]) * (C[1] - A[1]) - (B[1] - A[1]) * (C[0] - A[0]);
+      return (d > 0) - (d < 0);
+    };
+    const auto& S = in.segments;
+    for (std::size_t i = 0; i < S.size(); ++i)
+      for (std::size_t j = i + 1; j < S.size(); ++j) {
+        int a = S[i][0], b = S[i][1], c = S[j][0], d = S[j][1];
+        auto same = [&](int x, int y) { return in.uv[x][0] == in.uv[y][0] && in.uv[x][1] == in.uv[y][1]; };
+        if (same(a, c) || same(a, d) || same(b, c) || same(b, d)) continue;
+        if (orient(a, b, c) * orient(a, b, d) < 0 && orient(c, d, a) * orient(c, d, b) < 0) {
+          char buf[200];
+          std::snprintf(buf, sizeof buf, ", first between boundary points %d-%d and %d-%d near (%.6g, %.6g, %.6g)", a, b, c, d,
+                        p3[a][0], p3[a][1], p3[a][2]);
+          return buf;
+        }
+      }
+    return "";
+  }
+
   void insert_boundary() {
     std::vector<CDT::Vertex_handle> vh(in.uv.size());
     for (std::size_t i = 0; i < in.uv.size(); ++i) {
@@ -221,7 +246,8 @@ class UVMesher {
         throw std::runtime_error("the boundary has " + std::to_string(ni - nv) + " coincident points in the parameter plane");
       if (nv > ni)
         throw std::runtime_error("the boundary loops cross themselves or each other in the parameter plane (" +
-                                 std::to_string(nv - ni) + " crossings; e.g. a junction strip wider than the face allows)");
+                                 std::to_string(nv - ni) + " crossings" + first_crossing() +
+                                 "; e.g. a junction strip wider than the face allows)");
     }
   }
 

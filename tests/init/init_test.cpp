@@ -22,6 +22,8 @@ using meshflow::init::choose;
 
 namespace {
 const fs::path data = MESHFLOW_DATA_DIR;
+// scripts/synthetic-blade.py's arguments for the small blade row run end to end
+const char* const kSmallBlade = "--sections 4 --points 24 --hub 15 --tip 18 --chord 6 6.5 --stagger 30 40";
 meshflow::init::Analysis analysed(const fs::path& f) {
   return analyse(meshflow::geometry::import_cad(f, "", 1.0, [](const std::string&) {}));
 }
@@ -219,4 +221,92 @@ TEST_CASE("init: a blade row's section file (Rotor 67's export, CSV with --blade
   CAPTURE(run.out);
   CHECK(run.code == 0);
   CHECK(mftest::stage_stats(dir / "out", "heal")["watertight"] == true);
+}
+
+TEST_CASE("init: a synthetic blade's sections give a layer and sizes from chord, nose radius and throat, and overlapping counts are refused") {
+  fs::path dir = mftest::temp_dir("init-synthetic-blade");
+  struct Cleanup {
+    fs::path d;
+    ~Cleanup() {
+      std::error_code ec;
+      fs::remove_all(d, ec);
+    }
+  } cleanup{dir};
+  auto make = [&](const std::string& name, const std::string& args) {
+    auto r = mftest::sh(std::string(MESHFLOW_PYTHON) + " " + MESHFLOW_SOURCE_DIR "/scripts/synthetic-blade.py " +
+                        (dir / name).string() + " " + args + " 2>&1");
+    REQUIRE_MESSAGE(r.code == 0, r.out);
+    return dir / name;
+  };
+  fs::path csv = make("profiles.csv", "--units-comment cm");
+  auto r = mftest::run_cli({"init", csv.string(), "-o", (dir / "b24.yaml").string(), "--blades", "24"});
+  REQUIRE_MESSAGE(r.code == 0, r.err);
+  std::string t = mftest::read_text(dir / "b24.yaml");
+  CHECK(t.find("format: csv, blades: 24") != std::string::npos);
+  CHECK(t.find("in cm.") != std::string::npos);
+  // chord 6 cm at the hub (5.983 measured, the profile's loop), 5% of it
+  CHECK(t.find("# Measured: shortest chord 5.983 cm (section 1)") != std::string::npos);
+  CHECK(t.find("thickness: 0.2991, thickness_relative_to: length") != std::string::npos);
+  CHECK(t.find("sizes_relative_to: length") != std::string::npos);
+  CHECK(t.find("half the leading-edge radius") != std::string::npos);
+  // 60 blades: the throat between neighbours (0.757 cm at the hub) limits the layer
+  REQUIRE(mftest::run_cli({"init", csv.string(), "-o", (dir / "b60.yaml").string(), "--blades", "60"}).code == 0);
+  std::string t60 = mftest::read_text(dir / "b60.yaml");
+  CHECK(t60.find("a fifth of the narrowest throat") != std::string::npos);
+  CHECK(t60.find("thickness: 0.1514,") != std::string::npos);
+  // 200 blades overlap: refused, with the count that fits, nothing written
+  auto over = mftest::run_cli({"init", csv.string(), "-o", (dir / "b200.yaml").string(), "--blades", "200"});
+  CHECK(over.code == 2);
+  CHECK(over.err.find("200 blades do not fit") != std::string::npos);
+  CHECK(over.err.find("--blades 135 or fewer") != std::string::npos);
+  CHECK(!fs::exists(dir / "b200.yaml"));
+  // a z, r, theta table is recognised by its header; --units converts
+  fs::path zrt = make("profiles.txt", "--layout zrt --units-comment cm");
+  REQUIRE(mftest::run_cli({"init", zrt.string(), "-o", (dir / "z.yaml").string(), "--blades", "24", "--units", "m"}).code == 0);
+  std::string tz = mftest::read_text(dir / "z.yaml");
+  CHECK(tz.find("format: zrt, blades: 24, units: m") != std::string::npos);
+  CHECK(tz.find("shortest chord 0.05983 m") != std::string::npos);
+  // a bad line: exit 2 with the file and the line
+  std::string bad = mftest::read_text(csv);
+  bad.insert(bad.find("\n\n") + 1, "1.0;2.0\n");
+  mftest::write_text(dir / "bad.csv", bad);
+  auto b = mftest::run_cli({"init", (dir / "bad.csv").string(), "-o", (dir / "bad.yaml").string(), "--blades", "24"});
+  CHECK(b.code == 2);
+  CHECK(b.err.find("bad.csv") != std::string::npos);
+  CHECK(b.err.find(", line ") != std::string::npos);
+  CHECK(!fs::exists(dir / "bad.yaml"));
+}
+
+TEST_CASE("init: a small synthetic blade row, written by init and run as it is, ends valid") {
+  // scripts/synthetic-blade.py: 4 sections of a cambered NACA-like profile with a sharp trailing
+  // edge, r = 15 .. 18 cm, 36 blades; order 2 and 3 layers keep it short
+  fs::path dir = mftest::temp_dir("init-blade-run");
+  struct Cleanup {
+    fs::path d;
+    ~Cleanup() {
+      std::error_code ec;
+      fs::remove_all(d, ec);
+    }
+  } cleanup{dir};
+  fs::path csv = dir / "row.csv";
+  auto g = mftest::sh(std::string(MESHFLOW_PYTHON) + " " + MESHFLOW_SOURCE_DIR "/scripts/synthetic-blade.py " + csv.string() +
+                      " --units-comment cm " + kSmallBlade + " 2>&1");
+  REQUIRE_MESSAGE(g.code == 0, g.out);
+  fs::path wf = dir / "row.yaml";
+  auto r = mftest::run_cli({"init", csv.string(), "-o", wf.string(), "--blades", "36", "--order", "2", "--layers", "3"});
+  REQUIRE_MESSAGE(r.code == 0, r.err);
+  auto run = mftest::sh(std::string(MESHFLOW_EXE) + " run " + wf.string() + " --cache " + (dir / "cache").string() +
+                        " --out " + (dir / "out").string() + " 2>&1");
+  CAPTURE(run.out);
+  CHECK(run.code == 0);
+  auto report = nlohmann::json::parse(mftest::read_text(dir / "out/report.json"));
+  CHECK(report["ok"] == true);
+  CHECK(report["problems"].empty());
+  auto split = mftest::stage_stats(dir / "out", "split");
+  CHECK(split["mesh"]["invalid"] == 0);
+  CHECK(split["split"]["layers"] == 3);
+  CHECK(split["mesh"]["elements"]["prism"] > 0);
+  auto geo = mftest::stage_stats(dir / "out", "geometry");
+  CHECK(geo["sharp_trailing_edge_point"].is_number());
+  CHECK(geo["faces_by_surface"]["blade"] == 2);
 }
