@@ -225,13 +225,6 @@ TEST_CASE("init: a blade row's section file (Rotor 67's export, CSV with --blade
 
 TEST_CASE("init: a synthetic blade's sections give a layer and sizes from chord, nose radius and throat, and overlapping counts are refused") {
   fs::path dir = mftest::temp_dir("init-synthetic-blade");
-  struct Cleanup {
-    fs::path d;
-    ~Cleanup() {
-      std::error_code ec;
-      fs::remove_all(d, ec);
-    }
-  } cleanup{dir};
   auto make = [&](const std::string& name, const std::string& args) {
     auto r = mftest::sh(std::string(MESHFLOW_PYTHON) + " " + MESHFLOW_SOURCE_DIR "/scripts/synthetic-blade.py " +
                         (dir / name).string() + " " + args + " 2>&1");
@@ -281,13 +274,6 @@ TEST_CASE("init: a small synthetic blade row, written by init and run as it is, 
   // scripts/synthetic-blade.py: 4 sections of a cambered NACA-like profile with a sharp trailing
   // edge, r = 15 .. 18 cm, 36 blades; order 2 and 3 layers keep it short
   fs::path dir = mftest::temp_dir("init-blade-run");
-  struct Cleanup {
-    fs::path d;
-    ~Cleanup() {
-      std::error_code ec;
-      fs::remove_all(d, ec);
-    }
-  } cleanup{dir};
   fs::path csv = dir / "row.csv";
   auto g = mftest::sh(std::string(MESHFLOW_PYTHON) + " " + MESHFLOW_SOURCE_DIR "/scripts/synthetic-blade.py " + csv.string() +
                       " --units-comment cm " + kSmallBlade + " 2>&1");
