@@ -373,7 +373,7 @@ class Builder {
   void mesh_face(int f, int copy_from = -1);
   std::array<double, 2> uv_on_face(int f, std::uint32_t n, std::array<double, 2> hint) const;
   Loop wire_points(int f, const std::vector<cad::EdgeUse>& wire, const std::vector<char>& flip);
-  static void drop_detours(Loop& raw, std::array<double, 2> per);
+  static void drop_detours(Loop& raw, std::array<double, 2> per, double uv_tol);
   static void unwrap_loop(Loop& raw, std::array<double, 2> per);
   Loop build_wire(int f, const std::vector<cad::EdgeUse>& wire, const std::vector<char>& flip);
   static bool loop_closes(const Loop& raw, std::array<double, 2> per);
@@ -1021,14 +1021,21 @@ Builder::Loop Builder::wire_points(int f, const std::vector<cad::EdgeUse>& wire,
 // and the cut edge that continues from the strip's corner). A seam's node met on both sides of
 // the face, a period apart, is no detour: taken for one, the sphere's seam (its node before the
 // pole, the pole, the same node again on the far side) was zipped away from the pole down, the
-// whole loop (34 points) down to 1, and the face got no triangle.
-void Builder::drop_detours(Loop& raw, std::array<double, 2> per) {
+// whole loop (34 points) down to 1, and the face got no triangle. A node twice in a row is one
+// point when its two (u,v) agree within uv_tol (a millionth of the face's parameter box): the
+// two p-curves of the edges meeting there, or an edge of rounding length between two CAD
+// vertices that became one node (a blade passage's inflow plane, where the hub's junction strip
+// meets the periodic side: 1e-7 apart, kept, it made the boundary cross itself in the plane).
+// A pole's segment (one node, (u,v) a whole side of the face apart) is far above that.
+void Builder::drop_detours(Loop& raw, std::array<double, 2> per, double uv_tol) {
   bool changed = true;
   while (changed && raw.size() > 2) {
     changed = false;
     for (std::size_t i = 0; i < raw.size() && raw.size() > 2; ++i) {
       std::size_t j = (i + 1) % raw.size();
-      if (raw[i].node == raw[j].node && std::abs(raw[i].uv[0] - raw[j].uv[0]) + std::abs(raw[i].uv[1] - raw[j].uv[1]) < 1e-9 * (1 + std::abs(raw[i].uv[0]) + std::abs(raw[i].uv[1]))) {
+      if (raw[i].node == raw[j].node && !raw[i].pole &&
+          std::abs(raw[i].uv[0] - raw[j].uv[0]) + std::abs(raw[i].uv[1] - raw[j].uv[1]) <
+              std::max(uv_tol, 1e-9 * (1 + std::abs(raw[i].uv[0]) + std::abs(raw[i].uv[1])))) {
         raw.erase(raw.begin() + static_cast<long>(j));
         changed = true;
         break;
@@ -1075,7 +1082,8 @@ void Builder::unwrap_loop(Loop& raw, std::array<double, 2> per) {
 Builder::Loop Builder::build_wire(int f, const std::vector<cad::EdgeUse>& wire, const std::vector<char>& flip) {
   Loop raw = wire_points(f, wire, flip);
   const auto per = S.face_periods(f);
-  drop_detours(raw, per);
+  const auto box = S.face_uv_bounds(f);
+  drop_detours(raw, per, 1e-6 * std::max(box.u1 - box.u0, box.v1 - box.v0));
   unwrap_loop(raw, per);
   return raw;
 }

@@ -296,3 +296,24 @@ TEST_CASE("init: a small synthetic blade row, written by init and run as it is, 
   CHECK(geo["sharp_trailing_edge_point"].is_number());
   CHECK(geo["faces_by_surface"]["blade"] == 2);
 }
+
+TEST_CASE("init: the default synthetic rotor at 60 blades meshes its inflow plane (a rounding-length CAD edge is no boundary segment)") {
+  // scripts/synthetic-blade.py's default rotor (6 sections, r = 15 .. 30 cm) at 60 blades: the
+  // boolean leaves an edge of rounding length on the inflow plane where the hub's junction strip
+  // meets the periodic side; its two ends are one node, whose two (u,v) differed by ~1e-7, and
+  // sweep stopped: "the boundary loops cross themselves ... in the parameter plane"
+  fs::path dir = mftest::temp_dir("init-blade-60");
+  fs::path csv = dir / "rotor.csv";
+  auto g = mftest::sh(std::string(MESHFLOW_PYTHON) + " " + MESHFLOW_SOURCE_DIR "/scripts/synthetic-blade.py " + csv.string() + " 2>&1");
+  REQUIRE_MESSAGE(g.code == 0, g.out);
+  fs::path wf = dir / "rotor.yaml";
+  REQUIRE(mftest::run_cli({"init", csv.string(), "-o", wf.string(), "--blades", "60"}).code == 0);
+  std::string short_wf = mftest::workflow_without(wf, dir / "short.yaml", {"tet", "curve", "optimise", "split", "mesh"});
+  auto run = mftest::sh(std::string(MESHFLOW_EXE) + " run " + short_wf + " --cache " + (dir / "cache").string() + " --out " +
+                        (dir / "out").string() + " 2>&1");
+  CAPTURE(run.out);
+  CHECK(run.code == 0);
+  auto sweep = mftest::stage_stats(dir / "out", "sweep");
+  CHECK(sweep["mesh"]["invalid"] == 0);
+  CHECK(sweep["sweep"]["prisms"].get<int>() > 0);
+}
