@@ -453,7 +453,8 @@ TEST_CASE("a clean run and a later run from the cache write byte-identical out/ 
   Run clean = box.run(box.dir / "clean-cache", box.dir / "clean");
   INFO(clean.log);
   REQUIRE(clean.code == 0);
-  for (auto& s : report(box.dir / "clean")["stages"]) CHECK(s["status"] == "ran");
+  const nlohmann::json clean_report = report(box.dir / "clean");  // kept: a range-for over a temporary's member dangles
+  for (auto& s : clean_report["stages"]) CHECK(s["status"] == "ran");
   CHECK(tree_differences(ref.out, box.dir / "clean") == std::vector<std::string>{});
   CHECK(mftest::read_text(box.dir / "clean/shape.step").find("'1970-01-01T00:00:00'") != std::string::npos);
   CHECK(mftest::read_text(box.dir / "clean/shape.igs").find("15H19700101.000000") != std::string::npos);
