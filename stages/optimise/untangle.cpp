@@ -205,10 +205,10 @@ struct Budget {
   // stop it alone, nor does a run of failures costing less than the repairs so far: the limit is
   // one element_limit more than the larger of stage_limit and the repairs' work (Rotor 67: one element
   // gave up on its 200 M budget after 84 repairs, which passed the 40 M stage_limit and left 171
-  // of 297 untried, most of them repairable).
-  double repairs = 0;
+  // of 297 untried, most of them repairable). Every repair charges work, so repair_work > 0
+  // once there has been one.
   double no_progress_limit() const {
-    if (repairs == 0) return stage_limit;
+    if (!(repair_work > 0)) return stage_limit;
     return std::max(stage_limit, repair_work) + std::max(element_limit, 0.0);
   }
   double time_limit = 0;
@@ -798,7 +798,6 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
         }
         ++rep.repaired;
         B.repair_work += B.element_used;
-        ++B.repairs;
         B.stage_used = 0;  // progress: the no-progress budget starts again
         ++rep.repaired_at_ring[ring - 1];
         rep.repaired_sliding += mode == 1;

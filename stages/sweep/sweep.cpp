@@ -125,15 +125,16 @@ class Reparam {
     lo_ = {b.u0, b.v0}, hi_ = {b.u1, b.v1};
     for (int k = 0; k < 2; ++k)
       if (!(hi_[k] > lo_[k])) hi_[k] = lo_[k] + 1;
-    // speeds on a grid: sp[k][i][j] = |dS/d(param k)| at u_i, v_j
-    std::vector<double> su((N + 1) * (N + 1)), sv((N + 1) * (N + 1));
+    // speeds on a grid: sp[k][i][j] = |dS/d(param k)| at u_i, v_j; dots: dS/du . dS/dv there
+    std::vector<double> su((N + 1) * (N + 1)), sv((N + 1) * (N + 1)), dots((N + 1) * (N + 1));
     for (int i = 0; i <= N; ++i)
       for (int j = 0; j <= N; ++j) {
         auto d = S.face_eval(f, at(0, i), at(1, j));
         su[i * (N + 1) + j] = std::sqrt(d.du.x * d.du.x + d.du.y * d.du.y + d.du.z * d.du.z);
         sv[i * (N + 1) + j] = std::sqrt(d.dv.x * d.dv.x + d.dv.y * d.dv.y + d.dv.z * d.dv.z);
+        dots[i * (N + 1) + j] = d.du.x * d.dv.x + d.du.y * d.dv.y + d.du.z * d.dv.z;
       }
-    if (conformal_setup(S, f, su, sv)) return;
+    if (conformal_setup(su, sv, dots)) return;
     // variation of the line means: how much the u-speed changes from one v-line to another
     auto spread = [&](const std::vector<double>& sp, bool along_u) {
       double mn = INFINITY, mx = 0;
@@ -227,15 +228,8 @@ class Reparam {
   // maps to a segment of length 2 pi c at a finite V: the cap inside the floor, 1% of the
   // radius across, is the only non-conformal part. Where r is constant (planes, cylinders) the
   // arc-length map is an isometry already and is kept. Sets B_ (V over b), ia_ and c_.
-  bool conformal_setup(const cad::Shape& S, int f, const std::vector<double>& su, const std::vector<double>& sv) {
-    std::vector<double> dots((N + 1) * (N + 1));
-    double smax = 0;
-    for (int i = 0; i <= N; ++i)
-      for (int j = 0; j <= N; ++j) {
-        auto d = S.face_eval(f, at(0, i), at(1, j));
-        dots[i * (N + 1) + j] = d.du.x * d.dv.x + d.du.y * d.dv.y + d.du.z * d.dv.z;
-        smax = std::max({smax, su[i * (N + 1) + j], sv[i * (N + 1) + j]});
-      }
+  bool conformal_setup(const std::vector<double>& su, const std::vector<double>& sv, const std::vector<double>& dots) {
+    const double smax = std::max(*std::max_element(su.begin(), su.end()), *std::max_element(sv.begin(), sv.end()));
     if (!(smax > 0)) return false;
     const double tol = 1e-6 * smax;
     for (int ia = 0; ia < 2; ++ia) {
@@ -260,15 +254,15 @@ class Reparam {
       // distorts angles by more than 45 degrees (a whole sphere, torus or cone); below, the
       // arc-length map keeps lengths (the size field stays isotropic in the plane), which the
       // conformal map trades for angles (its plane scale is c / r)
-      const double hb0 = (hi_[1 - ia] - lo_[1 - ia]) / N, range_a = hi_[ia] - lo_[ia];
+      const double hb = (hi_[1 - ia] - lo_[1 - ia]) / N, range_a = hi_[ia] - lo_[ia];
       shear_ = 0;
       for (int l = 0; l < N; ++l) {
-        const double dr = std::abs(at_ab(sa, 0, l + 1) - at_ab(sa, 0, l)) / hb0;
+        const double dr = std::abs(at_ab(sa, 0, l + 1) - at_ab(sa, 0, l)) / hb;
         const double sm = std::max(0.5 * (at_ab(sb, 0, l) + at_ab(sb, 0, l + 1)), 0.02 * mean_s);
         shear_ = std::max(shear_, range_a * dr / sm);
       }
       if (shear_ <= 1) return false;
-      const double floor_r = 0.02 * mean_r, hb = (hi_[1 - ia] - lo_[1 - ia]) / N;
+      const double floor_r = 0.02 * mean_r;
       c_ = mean_r;
       B_.assign(N + 1, 0.0);
       auto g = [&](int l) { return std::max(at_ab(sb, 0, l), 0.02 * mean_s) / std::max(at_ab(sa, 0, l), floor_r); };
