@@ -262,15 +262,8 @@ int Cache::clean_stale_locks(double stale_seconds) const {
 int Cache::clean_stale_tmp() const {
   int removed = 0;
   std::error_code ec;
-  const std::string me = sanitized_hostname();
   for (auto& e : fs::directory_iterator(tmp_dir(), ec)) {
-    std::string host;
-    long pid = 0;
-    std::string name = e.path().filename().string();
-    bool dead = false;
-    if (parse_owner(name, &host, &pid)) dead = host == me && !process_alive(pid);
-    if (!dead && age_seconds(e.path()) > 86400) dead = true;
-    if (dead) {
+    if (stale_debris(e.path(), e.path().filename().string())) {
       fs::remove_all(e.path(), ec);
       ++removed;
     }

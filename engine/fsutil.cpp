@@ -155,7 +155,6 @@ void clone_or_copy(const fs::path& source, const fs::path& target) {
 int remove_stale_tmp_files(const fs::path& dir) {
   int removed = 0;
   std::error_code ec;
-  const std::string me = sanitized_hostname();
   for (auto& e : fs::directory_iterator(dir, ec)) {
     std::string name = e.path().filename().string();
     auto at = name.find(".tmp.");
@@ -163,11 +162,17 @@ int remove_stale_tmp_files(const fs::path& dir) {
     std::string host;
     long pid = 0;
     if (!parse_owner(name.substr(at + 1), &host, &pid)) continue;  // not one of ours
-    struct stat st;
-    bool old = ::stat(e.path().c_str(), &st) == 0 && std::time(nullptr) - st.st_mtime > 86400;
-    if ((host == me && !process_alive(pid)) || old) removed += fs::remove(e.path(), ec) ? 1 : 0;
+    if (stale_debris(e.path(), name.substr(at + 1))) removed += fs::remove(e.path(), ec) ? 1 : 0;
   }
   return removed;
+}
+
+bool stale_debris(const fs::path& p, const std::string& owner_name) {
+  std::string host;
+  long pid = 0;
+  if (parse_owner(owner_name, &host, &pid) && host == sanitized_hostname() && !process_alive(pid)) return true;
+  struct stat st;
+  return ::stat(p.c_str(), &st) == 0 && std::time(nullptr) - st.st_mtime > 86400;
 }
 
 bool writable_dir(const fs::path& dir, std::string* why) {

@@ -33,5 +33,9 @@ bool process_alive(long pid);  // on this host
 std::string unique_suffix();
 bool parse_owner(const std::string& name, std::string* host, long* pid);
 std::string sanitized_hostname();
+// Debris: the temp file or folder `p`, whose owner part of the name is `owner_name`
+// (<host>_<pid>_..., see unique_suffix), was left by a dead process of this host, or is older
+// than a day (another host's, or a name without an owner).
+bool stale_debris(const std::filesystem::path& p, const std::string& owner_name);
 
 }  // namespace meshflow
