@@ -42,6 +42,19 @@ void write_vtu(const model::Mesh& m, const std::filesystem::path& path);
 model::Mesh read_nektar(const std::filesystem::path& path);
 void write_nektar(const model::Mesh& m, const std::filesystem::path& path);
 
+// Solver-ready MSH (what PyFR's importer and meshio take; the `msh-ascii`, `msh-plain` and
+// `pyfr` formats and `meshflow convert` to .msh): every element written belongs to a physical
+// group. Gmsh's own rule when a model has physical groups (Mesh.SaveAll = 0) is to write only
+// the elements of entities in one; we follow it for faces, curves and points, whose elements in
+// no group (the CAD curves' edges) are dropped. Volume entities in no group join the volume group
+// ("fluid", made if absent) instead: a volume element is never dropped. A mesh without physical
+// groups is left as it is. Also drops the nodes' CAD parameters unless `keep_parametric`.
+void make_solver_ready(model::Mesh& m, bool keep_parametric = false);
+// PyFR's naming rules on top of make_solver_ready: physical tags unique across dimensions, and
+// the periodic pair periodic_lo / periodic_hi named `periodic_0_l` / `periodic_0_r` (PyFR pairs
+// `periodic_<name>_l` with `periodic_<name>_r`).
+void apply_pyfr_names(model::Mesh& m);
+
 // Classifies unclassified nodes on the lowest-dimensional entity whose elements use them
 // (as Gmsh does), so that every node belongs to an entity block of MSH 4.1.
 void classify_nodes(model::Mesh& m);

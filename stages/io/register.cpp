@@ -1,7 +1,7 @@
 // stages/io's registrations with the engine: the "mesh" artifact type (stored as binary MSH
-// 4.1; formats msh, msh-ascii, msh-plain (no parametric coordinates), vtu, nektar; summary =
+// 4.1; formats msh (the stored file), msh-ascii, msh-plain and pyfr (solver-ready), vtu, nektar; summary =
 // mesh_stats) and the commands `meshflow quality FILE [--json] [--threads N]` and
-// `meshflow convert IN OUT [--ascii] [--no-parametric]`.
+// `meshflow convert IN OUT [--ascii] [--parametric] [--all-elements]`.
 #include "engine/artifact_type.hpp"
 #include "engine/command.hpp"
 #include "stages/io/mesh_io.hpp"
@@ -90,35 +90,48 @@ int quality_cmd(const std::vector<std::string>& args) {
   }
 }
 
-// Drops the nodes' parametric coordinates on their CAD curves/surfaces: MSH without them is
-// what readers that do not support them load (meshio 5 refuses parametric node blocks).
-void strip_parametric(model::Mesh& m) {
-  m.node_u.clear();
-  m.node_v.clear();
-}
+const char* kConvertUsage =
+    "usage: meshflow convert IN OUT [--ascii] [--parametric] [--all-elements]\n"
+    "  formats by extension: .msh (Gmsh MSH 4.1) .vtu .xml (Nektar++)\n"
+    "  to .msh: binary unless --ascii; solver-ready by default: no CAD parameters on the nodes (--parametric keeps\n"
+    "  them, for Gmsh) and only elements in a physical group (--all-elements keeps the CAD curves' edges too)\n";
 
 int convert_cmd(const std::vector<std::string>& args) {
-  const char* usage = "usage: meshflow convert IN OUT [--ascii] [--no-parametric]   (formats by extension: .msh .vtu .xml)\n";
   std::vector<std::string> files;
-  bool ascii = false, no_parametric = false;
+  bool ascii = false, parametric = false, all_elements = false;
   for (auto& a : args) {
     if (a == "--ascii") ascii = true;
-    else if (a == "--no-parametric") no_parametric = true;
-    else if (!a.empty() && a[0] == '-') {
-      std::cerr << "meshflow convert: unknown option " << a << "\n" << usage;
+    else if (a == "--parametric") parametric = true;
+    else if (a == "--no-parametric") parametric = false;  // the default; kept for scripts written before it was
+    else if (a == "--all-elements") all_elements = true;
+    else if (a == "--help" || a == "-h") {
+      std::cout << kConvertUsage;
+      return 0;
+    } else if (!a.empty() && a[0] == '-') {
+      std::cerr << "meshflow convert: unknown option " << a << "\n" << kConvertUsage;
       return 2;
     } else files.push_back(a);
   }
   if (files.size() != 2) {
-    std::cerr << usage;
+    std::cerr << kConvertUsage;
     return 2;
   }
   try {
     auto m = read_mesh(files[0]);
-    if (no_parametric) strip_parametric(m);
     std::string e = ext_of(files[1]);
-    if (e == ".msh") write_msh(m, files[1], !ascii);
-    else write_mesh(m, files[1]);
+    if (e == ".msh") {
+      if (all_elements) {
+        if (!parametric) m.node_u.clear(), m.node_v.clear();
+      } else {
+        make_solver_ready(m, parametric);
+      }
+      write_msh(m, files[1], !ascii);
+    } else {
+      if (ascii || parametric || all_elements)
+        std::cerr << "meshflow convert: --ascii, --parametric and --all-elements apply to .msh output only; ignored for "
+                  << files[1] << "\n";
+      write_mesh(m, files[1]);
+    }
     return 0;
   } catch (const std::exception& e) {
     std::cerr << "meshflow convert: " << e.what() << "\n";
@@ -142,12 +155,14 @@ ArtifactFormat stored_copy() {
           }};
 }
 
-ArtifactFormat plain_msh() {
-  return {".plain.msh", "Gmsh MSH 4.1 binary without parametric node coordinates (for readers without them, e.g. meshio 5)",
-          [](const std::filesystem::path& in, const std::filesystem::path& out) {
+// The solver-ready MSH formats (make_solver_ready): no CAD parameters, every element in a
+// physical group; `pyfr` adds PyFR's naming rules (apply_pyfr_names).
+ArtifactFormat solver_msh(const char* ext, const char* summary, bool binary, bool pyfr) {
+  return {ext, summary, [binary, pyfr](const std::filesystem::path& in, const std::filesystem::path& out) {
             model::Mesh m = read_msh(in);
-            strip_parametric(m);
-            write_mesh(m, out, MeshFormat::MshBinary);
+            make_solver_ready(m);
+            if (pyfr) apply_pyfr_names(m);
+            write_msh(m, out, binary);
           }};
 }
 
@@ -156,8 +171,9 @@ const ArtifactTypeRegistrar mesh_type({
     .extension = ".msh",
     .summary = "high-order hybrid mesh (stored as binary Gmsh MSH 4.1)",
     .formats = {{"msh", stored_copy()},
-                {"msh-ascii", fmt(".msh", "Gmsh MSH 4.1 ASCII", MeshFormat::MshAscii)},
-                {"msh-plain", plain_msh()},
+                {"msh-ascii", solver_msh(".ascii.msh", "Gmsh MSH 4.1 ASCII, solver-ready (no CAD parameters, every element in a physical group)", false, false)},
+                {"msh-plain", solver_msh(".plain.msh", "Gmsh MSH 4.1 binary, solver-ready (no CAD parameters, every element in a physical group; meshio reads it)", true, false)},
+                {"pyfr", solver_msh(".pyfr.msh", "Gmsh MSH 4.1 ASCII for `pyfr import`: solver-ready, physical tags unique, periodic pair named periodic_0_l / periodic_0_r", false, true)},
                 {"vtu", fmt(".vtu", "VTK XML unstructured grid with Lagrange cells", MeshFormat::Vtu)},
                 {"nektar", fmt(".xml", "Nektar++ XML geometry", MeshFormat::Nektar)}},
     .summarize = [](const std::filesystem::path& p) { return model::mesh_stats(read_msh(p)); },
@@ -166,7 +182,7 @@ const ArtifactTypeRegistrar mesh_type({
 const CommandRegistrar quality_reg({"quality", "quality FILE [--json] [--threads N]",
                                     "validity (Bezier bounds of det J), scaled Jacobian, aspect ratio of a mesh",
                                     quality_cmd});
-const CommandRegistrar convert_reg({"convert", "convert IN OUT [--ascii] [--no-parametric]",
+const CommandRegistrar convert_reg({"convert", "convert IN OUT [--ascii] [--parametric] [--all-elements]",
                                     "convert meshes between .msh (4.1; reads 2.2), .vtu and Nektar++ .xml", convert_cmd});
 
 }  // namespace
