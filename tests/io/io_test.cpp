@@ -722,3 +722,84 @@ TEST_CASE("MSH with parametric node coordinates: Gmsh reads ours, meshio 5 reads
   CHECK(lines[4] == "gmsh " + counts + " 0");
   CHECK(lines[5] == "meshio " + counts);
 }
+
+TEST_CASE("solver-ready MSH: every element in a physical group, meshio and Gmsh agree, PyFR's importer rules hold") {
+  // A Gmsh-made order-4 tet mesh of a box (no pyramids: meshio 5 has every order-4 type but the
+  // pyramid) written with Mesh.SaveAll, so that the box's curves and corners carry elements in no
+  // physical group, as our stages' meshes do. Case A names the faces periodic_lo / periodic_hi /
+  // wall and the volume 'fluid' with tag 1, the tag of a face group too (PyFR refuses both); case
+  // B has no volume group (make_solver_ready makes 'fluid').
+  const std::string rules = std::string(MESHFLOW_SOURCE_DIR) + "/tests/io/pyfr_rules.py";
+  for (bool volume_group : {true, false}) {
+    INFO("volume group: " << volume_group);
+    auto src = tmpdir() / "sr_src.msh";
+    python(std::string("import gmsh\ngmsh.initialize()\ngmsh.option.setNumber('General.Terminal',0)\n"
+                       "gmsh.model.occ.addBox(0,0,0,1,1,1,1)\ngmsh.model.occ.synchronize()\n"
+                       "gmsh.model.addPhysicalGroup(2,[1],1)\ngmsh.model.setPhysicalName(2,1,'periodic_lo')\n"
+                       "gmsh.model.addPhysicalGroup(2,[2],2)\ngmsh.model.setPhysicalName(2,2,'periodic_hi')\n"
+                       "gmsh.model.addPhysicalGroup(2,[3,4,5,6],3)\ngmsh.model.setPhysicalName(2,3,'wall')\n") +
+           (volume_group ? "gmsh.model.addPhysicalGroup(3,[1],1)\ngmsh.model.setPhysicalName(3,1,'fluid')\n" : "") +
+           "gmsh.option.setNumber('Mesh.MeshSizeMax',0.5)\ngmsh.model.mesh.generate(3)\ngmsh.model.mesh.setOrder(4)\n"
+           "gmsh.option.setNumber('Mesh.SaveAll',1)\ngmsh.option.setNumber('Mesh.Binary',1)\n"
+           "gmsh.write('" + src.string() + "')\n");
+    Mesh m = io::read_mesh(src);
+    std::size_t vol = 0, tagged_faces = 0, loose = 0;
+    for (auto& b : m.blocks) {
+      if (b.entity_dim == 3) vol += b.size();
+      else if (b.entity_dim == 2) tagged_faces += b.size();
+      else loose += b.size();
+    }
+    REQUIRE(loose > 0);  // curve and point elements in no physical group: what readers choke on
+    auto stored = tmpdir() / "sr_stored.msh";
+    io::write_msh(m, stored);
+    const ArtifactType* t = find_artifact_type("mesh");
+    REQUIRE(t);
+    auto plain = tmpdir() / "sr.plain.msh", pyfr = tmpdir() / "sr.pyfr.msh", ascii = tmpdir() / "sr.ascii.msh";
+    t->formats.at("msh-plain").write(stored, plain);
+    t->formats.at("pyfr").write(stored, pyfr);
+    t->formats.at("msh-ascii").write(stored, ascii);
+    auto conv = tmpdir() / "sr_conv.msh";
+    CHECK(run_cmd("convert", {stored.string(), conv.string()}) == 0);  // convert's default is solver-ready too
+
+    Mesh r = io::read_mesh(plain);
+    CHECK_FALSE(r.has_parametric());
+    std::size_t r_vol = 0, r_faces = 0, r_loose = 0;
+    for (auto& b : r.blocks) (b.entity_dim == 3 ? r_vol : b.entity_dim == 2 ? r_faces : r_loose) += b.size();
+    CHECK(r_vol == vol);  // no volume element is ever dropped
+    CHECK(r_faces == tagged_faces);
+    CHECK(r_loose == 0);
+    std::set<std::string> names;
+    for (auto& p : r.physicals) names.insert(std::to_string(p.dim) + ":" + p.name);
+    CHECK(names == std::set<std::string>{"2:periodic_lo", "2:periodic_hi", "2:wall", "3:fluid"});
+
+    // meshio and Gmsh read the solver-ready files with the same counts; meshio refuses the stored file
+    const std::string counts = std::to_string(r.num_elements());
+    std::string script = "import gmsh, meshio\ngmsh.initialize()\ngmsh.option.setNumber('General.Terminal',0)\n";
+    for (auto& f : {plain, conv, ascii})
+      script += "gmsh.clear()\ngmsh.open('" + f.string() + "')\n_,tags,_=gmsh.model.mesh.getElements()\n"
+                "mm=meshio.read('" + f.string() + "')\nprint('both', sum(len(x) for x in tags), sum(len(c.data) for c in mm.cells),"
+                " len(mm.cell_data['gmsh:physical']) == len(mm.cells))\n";
+    script += "try:\n  meshio.read('" + stored.string() + "')\n  print('stored-read')\nexcept Exception as e:\n  print('stored-refused')\n";
+    std::istringstream out(python(script));
+    std::vector<std::string> lines;
+    for (std::string line; std::getline(out, line);)
+      if (line.rfind("both", 0) == 0 || line.rfind("stored", 0) == 0) lines.push_back(line);
+    REQUIRE(lines.size() == 4);
+    for (int k = 0; k < 3; ++k) CHECK(lines[k] == "both " + counts + " " + counts + " True");
+    CHECK(lines[3] == "stored-refused");
+
+    // PyFR's rules: the pyfr format passes with one volume group, two boundary groups and one
+    // periodic pair; the others are refused for the reason PyFR would give
+    auto rule = [&](const fs::path& f) {
+      std::string o = python("import subprocess, sys\nr=subprocess.run([sys.executable,'" + rules + "','" + f.string() +
+                             "'],capture_output=True,text=True)\nprint(r.stdout.strip())\n");
+      return o.substr(0, o.find('\n'));
+    };
+    CHECK(rule(pyfr) == "ok " + std::to_string(r.num_nodes()) + " " + counts + " 1 1 1");
+    CHECK(rule(stored).find("refused: not an ASCII file") == 0);
+    const std::string a = rule(ascii);
+    CHECK(a.find("refused: ") == 0);
+    if (volume_group) CHECK(a.find("duplicate physical tag 1") != std::string::npos);
+    else CHECK(a.find("periodic name 'periodic_lo'") != std::string::npos);
+  }
+}

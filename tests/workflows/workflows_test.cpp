@@ -166,6 +166,48 @@ TEST_CASE("naca_wingtip: runs, matches its golden, re-runs from cache, --set re-
       CHECK(nb.second == 0);
     }
     CHECK(by.size() == 4);  // tets, prisms, hexes, pyramids
+
+    // the solver-ready formats of the same run (a copy of the workflow asking for them, same
+    // cache: nothing re-runs): meshio and Gmsh read the plain MSH of the linear and the order-2
+    // mesh with equal counts, and the pyfr file keeps PyFR's importer rules (tests/io/pyfr_rules.py)
+    std::string text = slurp(wf);
+    auto swap = [&](const std::string& from, const std::string& to) {
+      auto at = text.find(from);
+      REQUIRE(at != std::string::npos);
+      text.replace(at, from.size(), to);
+    };
+    swap("linear: {from: tet, formats: [msh]}", "linear: {from: tet, formats: [msh-plain]}");
+    swap("mesh: {from: split, formats: [msh, vtu, nektar]}", "mesh: {from: split, formats: [msh-plain, pyfr]}");
+    text = text.substr(0, text.find("\ngolden:") + 1);
+    std::ofstream(d / "solver.yaml") << text;
+    auto sr = sh(meshflow() + " run " + (d / "solver.yaml").string() + " --cache " + (d / "cache").string() + " --out " +
+                 (d / "solver").string() + " --set curve.order=2");
+    INFO(sr.out);
+    REQUIRE(sr.code == 0);
+    json rs = json::parse(slurp(d / "solver/report.json"));
+    for (auto& s : rs["stages"]) CHECK(s["status"] == "cached");
+    const std::string py = std::string(MESHFLOW_PYTHON), src = MESHFLOW_SOURCE_DIR;
+    for (const char* f : {"linear.plain.msh", "mesh.plain.msh"}) {
+      INFO(f);
+      auto c = sh(py + " -c \"import gmsh, meshio, sys\ngmsh.initialize()\ngmsh.option.setNumber('General.Terminal',0)\n"
+                  "gmsh.open(sys.argv[1])\n_,t,_=gmsh.model.mesh.getElements()\nn,_,_=gmsh.model.mesh.getNodes()\nm=meshio.read(sys.argv[1])\n"
+                  "print(len(n), sum(len(x) for x in t), len(m.points), sum(len(c.data) for c in m.cells))\" " +
+                  (d / "solver" / f).string() + " 2>&1");
+      INFO(c.out);
+      REQUIRE(c.code == 0);
+      std::istringstream in(c.out);
+      long gn = 0, ge = 0, mn = 0, me = 0;
+      in >> gn >> ge >> mn >> me;
+      CHECK(gn > 1000);
+      CHECK(ge > 1000);
+      CHECK(mn == gn);
+      CHECK(me == ge);
+    }
+    auto pr = sh(py + " " + src + "/tests/io/pyfr_rules.py " + (d / "solver/mesh.pyfr.msh").string());
+    INFO(pr.out);
+    CHECK(pr.code == 0);
+    CHECK(pr.out.find("ok ") == 0);
+    CHECK(pr.out.find(" 1 3 0\n") != std::string::npos);  // fluid; wall, farfield, symmetry; no periodic pair
   }
   // the mesh contract: the clean run kept every clause at every mesh stage (curve's inverted
   // elements are a note that optimise repairs); the curved mesh fills the CAD's fluid volume
