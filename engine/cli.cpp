@@ -3,6 +3,7 @@
 #include "engine/command.hpp"
 #include "engine/fsutil.hpp"
 #include "engine/golden.hpp"
+#include "engine/matrix.hpp"
 #include "engine/registry.hpp"
 #include "engine/runner.hpp"
 #include "engine/schema.hpp"
@@ -131,7 +132,7 @@ int cli_main(int argc, char** argv) {
              "\n\nExit codes: 0 success; 1 a stage failed or `check` found differences; 2 bad input (workflow, "
              "arguments); 3 a mesh breaks the contract (invalid, degenerate, non-conforming or untagged elements, CAD faces "
              "not covered, volume not filled): outputs are written for inspection and report.json lists the problems.");
-  std::string workflow_file, stage, cache_dir, out_dir, max_size;
+  std::string workflow_file, stage, cache_dir, out_dir, max_size, variant;
   std::vector<std::string> sets;
   int jobs = 0, threads = 0;
   bool verbose = false, dot = false, update = false, verify = false, repair = false, json_out = false;
@@ -142,6 +143,7 @@ int cli_main(int argc, char** argv) {
     sc->add_option("workflow", workflow_file, "workflow YAML file")->required();
     sc->add_option("--set", sets, "override a parameter: STAGE.PARAM=VALUE (repeatable)");
     sc->add_option("--cache", cache_dir, "cache folder (default: $MESHFLOW_CACHE, else .meshflow/ beside the workflow)");
+    sc->add_option("--variant", variant, "one variant of the workflow's matrix (by name; `meshflow dag` lists them)");
     if (with_run_opts) {
       sc->add_option("-j,--jobs", jobs, "stages run at once (default: number of cores)");
       sc->add_option("--threads", threads, "total thread budget shared by running stages (default: number of cores)");
@@ -245,8 +247,34 @@ int cli_main(int argc, char** argv) {
   }
 
   Workflow wf;
+  std::vector<Variant> variants;
   try {
     wf = load_workflow(workflow_file, sets);
+    variants = matrix_variants(wf);
+    if (!variants.empty() && variant.empty() && run->parsed()) {  // the whole study
+      RunOptions ro;
+      ro.cache_dir = cache_dir;
+      ro.out_dir = out_dir;
+      ro.jobs = jobs;
+      ro.threads = threads;
+      ro.verbose = verbose;
+      ro.allow_invalid = allow_invalid;
+      auto res = run_matrix(wf, sets, ro);
+      return res.ok ? 0 : res.failed ? kFailed : kInvalid;
+    }
+    if (!variant.empty()) {  // one variant: the workflow with its values, outputs in out/<name>/<variant>/
+      const Variant& v = find_variant(variants, variant, wf);
+      auto o = sets;
+      o.insert(o.end(), v.overrides.begin(), v.overrides.end());
+      wf = load_workflow(workflow_file, o);
+      if (out_dir.empty()) out_dir = (fs::current_path() / "out" / wf.name / v.name).string();
+    } else if (!variants.empty() && !dag->parsed() && !clean->parsed() && !gc->parsed()) {
+      std::string names;
+      for (auto& x : variants) names += (names.empty() ? "" : ", ") + x.name;
+      std::cerr << "error: " << wf.file.string() << " has a matrix of " << variants.size()
+                << " variants; this command takes one: add --variant NAME (" << names << ").\n";
+      return kBadInput;
+    }
   } catch (const WorkflowError& e) {
     std::cerr << "error: " << e.what() << "\n";
     return kBadInput;
@@ -268,6 +296,11 @@ int cli_main(int argc, char** argv) {
             std::cout << " <- ";
             for (size_t i = 0; i < s.needs.size(); ++i) std::cout << (i ? ", " : "") << s.needs[i];
           }
+          std::cout << "\n";
+        }
+        if (!variants.empty() && variant.empty()) {
+          std::cout << "matrix: " << variants.size() << " variants:";
+          for (auto& v : variants) std::cout << " " << v.name;
           std::cout << "\n";
         }
       }

@@ -446,6 +446,34 @@ Workflow load_workflow_text(const std::string& text, const fs::path& file, const
     }
     wf.golden = g;
   }
+
+  // Matrix: keys name stages of this workflow (the parameter itself is checked when each variant
+  // is loaded with the key as an override), in file order (walk the YAML: nlohmann sorts).
+  if (root["matrix"]) {
+    std::size_t variants = 1;
+    for (auto it = root["matrix"].begin(); it != root["matrix"].end(); ++it) {
+      const std::string key = it->first.Scalar();
+      const std::string ptr = "/matrix/" + escape_token(key);
+      const auto dot = key.find('.');
+      if (dot == std::string::npos || dot == 0 || dot + 1 == key.size())
+        src.fail(ptr, "matrix key '" + key + "' is not STAGE.PARAM (as for --set, e.g. curve.order).");
+      const std::string stage = key.substr(0, dot);
+      if (!wf.find(stage)) {
+        std::vector<std::string> names;
+        for (auto& s : wf.stages) names.push_back(s.name);
+        const std::string near = nearest_name(stage, names);
+        src.fail(ptr, "matrix key '" + key + "' names no stage of this workflow" +
+                          (near.empty() ? "." : "; did you mean '" + near + key.substr(dot) + "'?"));
+      }
+      std::vector<std::string> values;
+      for (auto& v : doc["matrix"][key]) values.push_back(v.dump());
+      variants *= values.size();
+      wf.matrix.emplace_back(key, std::move(values));
+    }
+    if (variants > kMaxVariants)
+      src.fail("/matrix", "the matrix makes " + std::to_string(variants) + " variants; at most " + std::to_string(kMaxVariants) +
+                              " are allowed. Split the study into several workflows or fewer values.");
+  }
   return wf;
 }
 

@@ -8,6 +8,7 @@
 //   outputs:
 //     NAME: {from: STAGE, artifact: ARTIFACT (default: the stage's first), formats: [FMT...]}
 //   golden: DIR | {path: DIR, tolerance: {rel, abs}, fields: {"a.b.c": {rel, abs}}}
+//   matrix: {STAGE.PARAM: [VALUE...], ...}   (variants: engine/matrix.hpp)
 // schemas/workflow.schema.json is the truth for the top level; schemas/<kind>.schema.json
 // for each stage's `with`. Relative paths are relative to the workflow file's folder.
 #pragma once
@@ -28,6 +29,7 @@ namespace meshflow {
 constexpr std::size_t kMaxWorkflowBytes = 1 << 20;  // the file (1 MiB)
 constexpr std::size_t kMaxYamlNodes = 100000;       // nodes after alias expansion (`*a` copies `&a`)
 constexpr std::size_t kMaxNameLength = 100;         // workflow and stage names (they name files)
+constexpr std::size_t kMaxVariants = 256;           // variants a `matrix:` may make
 
 // Every problem with a workflow is reported as one paragraph: where, what, what to do.
 struct WorkflowError : std::runtime_error {
@@ -65,6 +67,9 @@ struct Workflow {
   std::vector<StageDecl> stages;  // in deterministic topological order (file order for ties)
   std::vector<OutputDecl> outputs;
   std::optional<GoldenDecl> golden;
+  // `matrix:` in file order: "STAGE.PARAM" and its values (each as JSON text, which is YAML and
+  // goes through the same path as --set). Empty without a matrix. engine/matrix.hpp expands it.
+  std::vector<std::pair<std::string, std::vector<std::string>>> matrix;
 
   const StageDecl* find(const std::string& stage) const;
   // The stage and everything downstream of it.
