@@ -103,7 +103,7 @@ size_t files_in(const fs::path& dir) {
 
 }  // namespace
 
-TEST_CASE("remote: the HTTP client puts, gets and heads against a local server") {
+TEST_CASE("the HTTP client puts, gets and heads against a local server") {
   Server srv;
   http::Client c({});
   fs::path dir = mftest::temp_dir("remote-client");
@@ -135,7 +135,7 @@ TEST_CASE("remote: the HTTP client puts, gets and heads against a local server")
   CHECK(files_in(dir / "tmp") == 0);
 }
 
-TEST_CASE("remote: credentials come from a netrc file or a header, never the URL") {
+TEST_CASE("credentials come from a netrc file or a header, never the URL") {
   fs::path dir = mftest::temp_dir("remote-creds");
   {
     Server srv({"--require-basic", "alice:s3cret"});
@@ -173,7 +173,7 @@ TEST_CASE("remote: credentials come from a netrc file or a header, never the URL
   CHECK(resolve_remote_cache("", "", 5, 60).url.empty());
 }
 
-TEST_CASE("remote: a server that never answers times out within the set timeout; a closed port fails at once") {
+TEST_CASE("a server that never answers times out within the set timeout, a closed port fails at once") {
   Server hang({"--mode", "hang"});
   http::ClientOptions o;
   o.timeout_s = 1;
@@ -203,7 +203,7 @@ TEST_CASE("remote: a server that never answers times out within the set timeout;
   CHECK(err.str().find("local cache only") != std::string::npos);
 }
 
-TEST_CASE("remote: an upload serves an empty cache; a corrupt object is discarded and replaced") {
+TEST_CASE("an upload serves an empty cache, a corrupt object is discarded and replaced") {
   Server srv;
   fs::path dir = mftest::temp_dir("remote-roundtrip");
   Cache a(dir / "a");
@@ -254,7 +254,7 @@ TEST_CASE("remote: an upload serves an empty cache; a corrupt object is discarde
   CHECK(mftest::read_text(srv.root / "cas" / digest) == bytes);
 }
 
-TEST_CASE("remote: an entry that is not the key's, or names no SHA-256, is refused") {
+TEST_CASE("an entry that is not the key's, or names no SHA-256, is refused") {
   Server srv;
   fs::path dir = mftest::temp_dir("remote-entries");
   Cache a(dir / "a");
@@ -289,7 +289,7 @@ TEST_CASE("remote: an entry that is not the key's, or names no SHA-256, is refus
   CHECK(e3.str().find("not JSON") != std::string::npos);
 }
 
-TEST_CASE("remote: a server that refuses PUT (405) is one warning; uploads stop") {
+TEST_CASE("a server that refuses PUT (405) is one warning, uploads stop") {
   Server srv({"--mode", "no-put"});
   fs::path dir = mftest::temp_dir("remote-405");
   Cache a(dir / "a");
