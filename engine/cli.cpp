@@ -138,6 +138,8 @@ int cli_main(int argc, char** argv) {
   bool verbose = false, dot = false, update = false, verify = false, repair = false, json_out = false;
   bool allow_invalid = false;
   double max_age_days = -1, grace = 3600;
+  std::string remote_url, remote_netrc;
+  double remote_timeout = 60, remote_connect_timeout = 5;
 
   auto add_common = [&](CLI::App* sc, bool with_run_opts) {
     sc->add_option("workflow", workflow_file, "workflow YAML file")->required();
@@ -149,6 +151,14 @@ int cli_main(int argc, char** argv) {
       sc->add_option("--threads", threads, "total thread budget shared by running stages (default: number of cores)");
       sc->add_option("--out", out_dir, "output folder (default: out/<workflow name>/)");
       sc->add_flag("-v,--verbose", verbose, "show each stage's log lines");
+      sc->add_option("--remote-cache", remote_url,
+                     "shared HTTP cache (Bazel layout: URL/cas/<sha256>, URL/ac/<key>) looked up after the local one; "
+                     "what runs is uploaded (default: $MESHFLOW_REMOTE_CACHE)");
+      sc->add_option("--remote-netrc", remote_netrc,
+                     "netrc file with the remote cache's credentials (default: $MESHFLOW_REMOTE_CACHE_NETRC, else ~/.netrc)");
+      sc->add_option("--remote-timeout", remote_timeout, "seconds one remote cache request may take, transfer included (default 60)");
+      sc->add_option("--remote-connect-timeout", remote_connect_timeout,
+                     "seconds to wait for the remote cache to accept a connection (default 5)");
     }
     if (sc->get_name() == "run")
       sc->add_flag("--allow-invalid", allow_invalid,
@@ -281,6 +291,9 @@ int cli_main(int argc, char** argv) {
   }
 
   try {
+    RemoteCacheOptions remote_opts;  // checked before any folder is made or stage run
+    if (run->parsed() || check->parsed() || golden->parsed())
+      remote_opts = resolve_remote_cache(remote_url, remote_netrc, remote_connect_timeout, remote_timeout);
     if (dag->parsed()) {
       if (dot) {
         std::cout << "digraph \"" << wf.name << "\" {\n  rankdir=LR;\n";
@@ -363,6 +376,7 @@ int cli_main(int argc, char** argv) {
       }
     }
     RunOptions ro;
+    ro.remote = remote_opts;
     ro.cache_dir = cache_dir;
     ro.out_dir = out_dir;
     ro.jobs = jobs;

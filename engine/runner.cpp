@@ -448,6 +448,8 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
   cache.clean_stale_tmp();
   cache.clean_stale_locks();
   json quarantined = json::array();
+  std::optional<RemoteCache> remote;
+  if (!opt.remote.url.empty()) remote.emplace(opt.remote, cache, err);
 
   std::map<std::string, StageResult> results;
   for (auto& d : wf.stages) {
@@ -498,7 +500,7 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
     const json problems = problems_of(r.stats);
     const bool invalid = !problems.empty() && (has_blocking(problems) || delivered[i]);
     if (status == "ran") line("  ran     " + r.name + " (" + fmt(r.seconds, 2) + " s, " + fmt(r.peak_rss_mb, 0) + " MB)");
-    else if (status == "cached") line("  cached  " + r.name);
+    else if (status == "cached") line("  cached  " + r.name + (r.remote ? " (remote)" : ""));
     else if (status == "failed") line("  FAILED  " + r.name);
     for (auto& p : problems)
       line(std::string(invalid ? "  INVALID " : "  note    ") + problem_line(r.name, p) +
@@ -578,9 +580,15 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
         finish(i, "cached");
       };
       // Verify on read: a hit whose objects do not match their digests is a miss (recomputed).
+      // Local first, then the remote cache (which verifies what it downloads).
       auto verified_entry = [&]() -> std::optional<json> {
         auto entry = cache.load_action(key.key);
         if (entry && !entry_intact(cache, d.name, *entry, err, quarantined)) entry.reset();
+        if (!entry && remote && remote->fetch(key.key, d.name)) {
+          entry = cache.load_action(key.key);
+          if (entry && !entry_intact(cache, d.name, *entry, err, quarantined)) entry.reset();
+          r.remote = entry.has_value();
+        }
         return entry;
       };
       if (auto entry = verified_entry()) {
@@ -681,6 +689,7 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
           for (auto& a : res.outputs) cache.mark_verified(a.digest);  // hashed as they were stored
           res.stats = result["stats"];
           status = "ran";
+          if (remote) remote->upload(r.key.key, entry, d.name);
         } catch (const std::exception& e) {
           res.error = std::string("could not record the result in the cache: ") + e.what();
         }
@@ -729,6 +738,7 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
               {"stats", r.stats}};
     if (!r.error.empty()) s["error"] = r.error;
     if (!r.computed.empty()) s["computed"] = r.computed;
+    if (remote) s["remote"] = r.remote;
     stages.push_back(s);
     if (r.status == "invalid")
       for (auto p : problems_of(r.stats)) {
@@ -740,6 +750,7 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
                {"problems", all_problems}, {"stages", stages}, {"seconds", secs(t0)}, {"outputs", json::object()}};
   if (rr.invalid && opt.allow_invalid) rr.report["invalid_accepted"] = true;
   if (!quarantined.empty()) rr.report["quarantined"] = quarantined;
+  if (remote) rr.report["remote_cache"] = remote->report();
 
   // The summary's first line says when the mesh breaks the contract, and where.
   if (rr.invalid) {
@@ -785,6 +796,10 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
       err << "error: cannot write " << (rr.out_dir / "report.json").string() << ": " << e.what() << "\n";
     }
   }
+  if (remote)
+    out << "remote cache " << opt.remote.url << ": " << rr.report["remote_cache"]["served"] << " stage(s) served, "
+        << rr.report["remote_cache"]["uploaded"] << " uploaded, " << rr.report["remote_cache"]["warnings"].size()
+        << " warning(s)\n";
   out << (rr.failed ? "FAILED" : !rr.ok ? "INVALID" : rr.invalid ? "ok (INVALID mesh accepted)" : "ok") << " in "
       << fmt(secs(t0), 2) << " s\n"
       << std::flush;

@@ -3,6 +3,7 @@
 #pragma once
 
 #include "engine/cache.hpp"
+#include "engine/remote_cache.hpp"
 #include "engine/stage.hpp"
 #include "engine/workflow.hpp"
 
@@ -28,6 +29,7 @@ struct RunOptions {
   // Accept results that break their contract (stats.problems): downstream stages run on them
   // and the run counts as ok, marked "invalid_accepted". For debugging; never the default.
   bool allow_invalid = false;
+  RemoteCacheOptions remote;        // url empty: no remote cache (see resolve_remote_cache)
   std::ostream* out = nullptr;      // progress and summary (default std::cout)
   std::ostream* err = nullptr;      // error paragraphs (default std::cerr)
 };
@@ -36,6 +38,7 @@ struct StageResult {
   std::string name, kind;
   std::string status = "skipped";  // ran | cached | invalid | failed | skipped
   std::string computed;            // an invalid result: how it was obtained (ran | cached)
+  bool remote = false;             // cached: served by the remote cache (downloaded in this run)
   std::string key, error;
   double seconds = 0, peak_rss_mb = 0;
   nlohmann::json stats = nlohmann::json::object();
