@@ -180,7 +180,7 @@ TEST_CASE("Nektar++ XML: corrupt compressed sections give a clear MeshIOError an
   }
 }
 
-TEST_CASE("Nektar++ XML: convert --plain, formats nektar and nektar-plain; no partial file on failure") {
+TEST_CASE("Nektar++ XML: convert --plain, formats nektar and nektar-plain, no partial file on failure") {
   auto c = tmp() / "cv.xml", p = tmp() / "cv_plain.xml";
   CHECK(run_cmd("convert", {kData + "v4.1_cube_tet.msh", c.string()}) == 0);
   CHECK(run_cmd("convert", {kData + "v4.1_cube_tet.msh", p.string(), "--plain"}) == 0);
