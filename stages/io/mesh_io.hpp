@@ -1,6 +1,6 @@
 // meshflow mesh formats: Gmsh MSH 4.1 (ASCII and binary, read+write) and MSH 2.2 (ASCII,
 // read), VTU (XML, appended raw binary, VTK Lagrange cells; write+read), Nektar++ XML
-// (uncompressed; read+write).
+// (compressed B64Z-LittleEndian sections, as NekMesh writes them, or plain; read+write).
 //
 // Every reader throws MeshIOError on bad input with a message naming the file and the line
 // (text) or byte offset (binary) and what is wrong: truncation, wrong magic/version, unknown
@@ -25,7 +25,7 @@ struct MeshIOError : std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
-enum class MeshFormat { MshBinary, MshAscii, Vtu, Nektar };
+enum class MeshFormat { MshBinary, MshAscii, Vtu, Nektar, NektarPlain };
 
 // By extension: .msh (any supported MSH version/encoding), .vtu, .xml. Without an extension
 // match (e.g. a file in the artifact store), the content decides ($MeshFormat, <VTKFile,
@@ -39,8 +39,12 @@ model::Mesh read_msh(const std::filesystem::path& path);
 void write_msh(const model::Mesh& m, const std::filesystem::path& path, bool binary = true);
 model::Mesh read_vtu(const std::filesystem::path& path);
 void write_vtu(const model::Mesh& m, const std::filesystem::path& path);
+// Reads both forms (plain and compressed sections, also mixed).
 model::Mesh read_nektar(const std::filesystem::path& path);
-void write_nektar(const model::Mesh& m, const std::filesystem::path& path);
+// Compressed (Nektar++'s B64Z-LittleEndian VERTEX, EDGE, FACE, ELEMENT and CURVED sections)
+// unless `compressed` is false; with an EXPANSIONS section (the mesh's order, every volume
+// composite) so that the file is a session Nektar++ can start from.
+void write_nektar(const model::Mesh& m, const std::filesystem::path& path, bool compressed = true);
 
 // Solver-ready MSH (what PyFR's importer and meshio take; the `msh-ascii`, `msh-plain` and
 // `pyfr` formats and `meshflow convert` to .msh): every element written belongs to a physical

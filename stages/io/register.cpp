@@ -1,7 +1,7 @@
 // stages/io's registrations with the engine: the "mesh" artifact type (stored as binary MSH
-// 4.1; formats msh (the stored file), msh-ascii, msh-plain and pyfr (solver-ready), vtu, nektar; summary =
+// 4.1; formats msh (the stored file), msh-ascii, msh-plain and pyfr (solver-ready), vtu, nektar (compressed), nektar-plain; summary =
 // mesh_stats) and the commands `meshflow quality FILE [--json] [--threads N]` and
-// `meshflow convert IN OUT [--ascii] [--parametric] [--all-elements]`.
+// `meshflow convert IN OUT [--ascii] [--parametric] [--all-elements] [--plain]`.
 #include "engine/artifact_type.hpp"
 #include "engine/command.hpp"
 #include "stages/io/mesh_io.hpp"
@@ -48,7 +48,8 @@ void write_mesh(const model::Mesh& m, const std::filesystem::path& path, MeshFor
     case MeshFormat::MshBinary: return write_msh(m, path, true);
     case MeshFormat::MshAscii: return write_msh(m, path, false);
     case MeshFormat::Vtu: return write_vtu(m, path);
-    case MeshFormat::Nektar: return write_nektar(m, path);
+    case MeshFormat::Nektar: return write_nektar(m, path, true);
+    case MeshFormat::NektarPlain: return write_nektar(m, path, false);
   }
 }
 
@@ -91,19 +92,21 @@ int quality_cmd(const std::vector<std::string>& args) {
 }
 
 const char* kConvertUsage =
-    "usage: meshflow convert IN OUT [--ascii] [--parametric] [--all-elements]\n"
+    "usage: meshflow convert IN OUT [--ascii] [--parametric] [--all-elements] [--plain]\n"
     "  formats by extension: .msh (Gmsh MSH 4.1) .vtu .xml (Nektar++)\n"
     "  to .msh: binary unless --ascii; solver-ready by default: no CAD parameters on the nodes (--parametric keeps\n"
-    "  them, for Gmsh) and only elements in a physical group (--all-elements keeps the CAD curves' edges too)\n";
+    "  them, for Gmsh) and only elements in a physical group (--all-elements keeps the CAD curves' edges too)\n"
+    "  to .xml: Nektar++'s compressed geometry (as NekMesh writes it) unless --plain (plain-text numbers)\n";
 
 int convert_cmd(const std::vector<std::string>& args) {
   std::vector<std::string> files;
-  bool ascii = false, parametric = false, all_elements = false;
+  bool ascii = false, parametric = false, all_elements = false, plain = false;
   for (auto& a : args) {
     if (a == "--ascii") ascii = true;
     else if (a == "--parametric") parametric = true;
     else if (a == "--no-parametric") parametric = false;  // the default; kept for scripts written before it was
     else if (a == "--all-elements") all_elements = true;
+    else if (a == "--plain") plain = true;
     else if (a == "--help" || a == "-h") {
       std::cout << kConvertUsage;
       return 0;
@@ -126,11 +129,16 @@ int convert_cmd(const std::vector<std::string>& args) {
         make_solver_ready(m, parametric);
       }
       write_msh(m, files[1], !ascii);
+      if (plain) std::cerr << "meshflow convert: --plain applies to .xml output only; ignored for " << files[1] << "\n";
     } else {
       if (ascii || parametric || all_elements)
         std::cerr << "meshflow convert: --ascii, --parametric and --all-elements apply to .msh output only; ignored for "
                   << files[1] << "\n";
-      write_mesh(m, files[1]);
+      if (e == ".xml") write_nektar(m, files[1], !plain);
+      else {
+        if (plain) std::cerr << "meshflow convert: --plain applies to .xml output only; ignored for " << files[1] << "\n";
+        write_mesh(m, files[1]);
+      }
     }
     return 0;
   } catch (const std::exception& e) {
@@ -175,14 +183,15 @@ const ArtifactTypeRegistrar mesh_type({
                 {"msh-plain", solver_msh(".plain.msh", "Gmsh MSH 4.1 binary, solver-ready (no CAD parameters, every element in a physical group; meshio reads it)", true, false)},
                 {"pyfr", solver_msh(".pyfr.msh", "Gmsh MSH 4.1 ASCII for `pyfr import`: solver-ready, physical tags unique, periodic pair named periodic_0_l / periodic_0_r", false, true)},
                 {"vtu", fmt(".vtu", "VTK XML unstructured grid with Lagrange cells", MeshFormat::Vtu)},
-                {"nektar", fmt(".xml", "Nektar++ XML geometry", MeshFormat::Nektar)}},
+                {"nektar", fmt(".xml", "Nektar++ XML session (compressed geometry, as NekMesh writes it, and EXPANSIONS)", MeshFormat::Nektar)},
+                {"nektar-plain", fmt(".plain.xml", "Nektar++ XML session with plain-text geometry (NekMesh's :xml:uncompress form)", MeshFormat::NektarPlain)}},
     .summarize = [](const std::filesystem::path& p) { return model::mesh_stats(read_msh(p)); },
 });
 
 const CommandRegistrar quality_reg({"quality", "quality FILE [--json] [--threads N]",
                                     "validity (Bezier bounds of det J), scaled Jacobian, aspect ratio of a mesh",
                                     quality_cmd});
-const CommandRegistrar convert_reg({"convert", "convert IN OUT [--ascii] [--parametric] [--all-elements]",
+const CommandRegistrar convert_reg({"convert", "convert IN OUT [--ascii] [--parametric] [--all-elements] [--plain]",
                                     "convert meshes between .msh (4.1; reads 2.2), .vtu and Nektar++ .xml", convert_cmd});
 
 }  // namespace

@@ -9,6 +9,7 @@
 #include <cstring>
 #include <fstream>
 #include <map>
+#include <set>
 #include <tuple>
 
 namespace meshflow::io {
@@ -39,11 +40,17 @@ void write_vtu(const Mesh& m, const std::filesystem::path& path) {
   std::vector<std::uint8_t> types, valid;
   std::vector<std::int32_t> gtype, edim, etag, phys, order;
   std::vector<double> sj;
+  std::set<std::int32_t> linearised;  // VTK cell types written with their vertices only
   for (size_t bi = 0; bi < m.blocks.size(); ++bi) {
     const auto& b = m.blocks[bi];
     int vt = vtk_cell_type(b.shape, b.order);
     const std::vector<int>* perm = vt ? &vtk_to_gmsh(b.shape, b.order) : nullptr;
-    if (!vt) vt = 14;  // pyramid of order >= 3: VTK 9.1 has no such cell; its vertices only
+    // Pyramid of order >= 3: VTK has no such cell (VTK_LAGRANGE_PYRAMID, 74, is only a reserved
+    // number: VTK 9.1's reader keeps the type but GetCell gives no cell for it), so its vertices
+    // only, named in the file's FieldData: meshflow_linearised_cells lists the VTK cell types
+    // these cells would have had (74, VTK_LAGRANGE_PYRAMID). Numbers, not a String array:
+    // meshio 5 refuses a VTU with a String array ("Illegal data type 'String'").
+    if (!vt) vt = 14, linearised.insert(74);
     // File version 1.0 (meshio 5 reads only 0.1/1.0): Lagrange hexahedra are then stored in
     // VTK's legacy order (vertical edges of vertices 2 and 3 swapped), which VTK >= 9.1
     // converts on reading (it does so for every file of version < 2.2) and VTK 9.0 reads as is.
@@ -82,7 +89,15 @@ void write_vtu(const Mesh& m, const std::filesystem::path& path) {
     off = data.size();
   };
   head += "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">\n";
-  head += "  <UnstructuredGrid>\n    <Piece NumberOfPoints=\"" + std::to_string(m.num_nodes()) + "\" NumberOfCells=\"" +
+  head += "  <UnstructuredGrid>\n";
+  if (!linearised.empty()) {
+    const std::vector<std::int32_t> types_linearised(linearised.begin(), linearised.end());
+    head += "    <FieldData>\n        <DataArray type=\"Int32\" Name=\"meshflow_linearised_cells\" NumberOfTuples=\"" +
+            std::to_string(types_linearised.size()) + "\" format=\"appended\" offset=\"" + std::to_string(off) + "\"/>\n    </FieldData>\n";
+    append(data, types_linearised);
+    off = data.size();
+  }
+  head += "    <Piece NumberOfPoints=\"" + std::to_string(m.num_nodes()) + "\" NumberOfCells=\"" +
           std::to_string(types.size()) + "\">\n      <Points>\n";
   arr("Float64", "Points", 3, pts);
   head += "      </Points>\n      <Cells>\n";

@@ -1,4 +1,4 @@
-// Nektar++ XML geometry (uncompressed): read and write.
+// Nektar++ XML geometry: read (both forms of the sections: nektar_sections.cpp gives a Geo).
 // Supported: 2D meshes of triangles and quadrilaterals and 3D meshes of tetrahedra (A),
 // prisms (R), pyramids (P) and hexahedra (H), with T and Q faces, CURVED edges
 // (PolyEvenlySpaced, GaussLobattoLegendre) and faces (triangles: NodalTriEvenlySpaced,
@@ -21,112 +21,28 @@
 // nodes with the Lagrange basis of their own point set. Electrostatic triangle points:
 // Hesthaven (1998), as tabulated by Nektar++ (NodalTriElecData.h), orders 1-6.
 #include "stages/io/mesh_io.hpp"
+#include "stages/io/nektar_xml.hpp"
 #include "stages/io/reader.hpp"
 #include "stages/model/basis.hpp"
 #include "stages/model/topology.hpp"
 
-#include <expat.h>
-
 #include <algorithm>
-#include <charconv>
 #include <cmath>
 #include <cstdint>
-#include <string_view>
-#include <tuple>
-#include <fstream>
 #include <map>
-#include <memory>
 #include <set>
 #include <sstream>
 #include <stdexcept>
+#include <tuple>
 
 namespace meshflow::io {
 
 using namespace model;
+using nektar::fail;
+using nektar::Geo;
+using nektar::Node;
 
 namespace {
-
-struct Node {
-  std::string name;
-  std::map<std::string, std::string> attr;
-  std::string text;
-  long line = 0;
-  std::vector<std::unique_ptr<Node>> kids;
-  const Node* child(const std::string& n) const {
-    for (auto& k : kids)
-      if (k->name == n) return k.get();
-    return nullptr;
-  }
-};
-
-struct Parser {
-  std::unique_ptr<Node> root;
-  std::vector<Node*> stack;
-  XML_Parser p;
-};
-
-void XMLCALL on_start(void* ud, const XML_Char* name, const XML_Char** atts) {
-  auto* ps = static_cast<Parser*>(ud);
-  auto n = std::make_unique<Node>();
-  n->name = name;
-  n->line = (long)XML_GetCurrentLineNumber(ps->p);
-  for (int i = 0; atts[i]; i += 2) n->attr[atts[i]] = atts[i + 1];
-  Node* raw = n.get();
-  if (ps->stack.empty()) ps->root = std::move(n);
-  else ps->stack.back()->kids.push_back(std::move(n));
-  ps->stack.push_back(raw);
-}
-void XMLCALL on_end(void* ud, const XML_Char*) { static_cast<Parser*>(ud)->stack.pop_back(); }
-void XMLCALL on_text(void* ud, const XML_Char* s, int len) {
-  auto* ps = static_cast<Parser*>(ud);
-  if (!ps->stack.empty()) ps->stack.back()->text.append(s, len);
-}
-
-std::unique_ptr<Node> parse_xml(const std::string& path, const std::string& data) {
-  Parser ps;
-  ps.p = XML_ParserCreate(nullptr);
-  XML_SetUserData(ps.p, &ps);
-  XML_SetElementHandler(ps.p, on_start, on_end);
-  XML_SetCharacterDataHandler(ps.p, on_text);
-  if (XML_Parse(ps.p, data.data(), (int)data.size(), 1) == XML_STATUS_ERROR) {
-    std::string msg = path + ":line " + std::to_string(XML_GetCurrentLineNumber(ps.p)) + ": XML error: " +
-                      XML_ErrorString(XML_GetErrorCode(ps.p)) + " (truncated or malformed file?)";
-    XML_ParserFree(ps.p);
-    throw MeshIOError(msg);
-  }
-  XML_ParserFree(ps.p);
-  return std::move(ps.root);
-}
-
-[[noreturn]] void fail(const std::string& path, const Node* n, const std::string& what) {
-  throw MeshIOError(path + ":line " + std::to_string(n ? n->line : 0) + ": " + what);
-}
-
-std::vector<double> numbers(const std::string& path, const Node* n) {
-  std::vector<double> v;
-  const char* s = n->text.c_str();
-  const char* e = s + n->text.size();
-  while (true) {
-    while (s < e && std::isspace((unsigned char)*s)) ++s;
-    if (s >= e) break;
-    const char* b = s;
-    while (s < e && !std::isspace((unsigned char)*s)) ++s;
-    double x;
-    auto r = std::from_chars(b, s, x);
-    if (r.ec != std::errc() || r.ptr != s) fail(path, n, "expected a number, found '" + std::string(b, s) + "'");
-    v.push_back(x);
-  }
-  return v;
-}
-long id_of(const std::string& path, const Node* n) {
-  auto it = n->attr.find("ID");
-  if (it == n->attr.end()) fail(path, n, "<" + n->name + "> without ID");
-  try {
-    return std::stol(it->second);
-  } catch (...) {
-    fail(path, n, "bad ID '" + it->second + "'");
-  }
-}
 
 // 1D point sets on [0,1] (Nektar's [-1,1] mapped)
 std::vector<double> points1d(const std::string& type, int n, const std::string& path, const Node* at) {
@@ -241,18 +157,6 @@ std::vector<Vec3> tri_points(const std::string& type, int P, const std::string& 
   return out;
 }
 
-struct Geo {
-  std::map<long, Vec3> V;
-  std::map<long, std::array<long, 2>> E;
-  std::map<long, std::vector<long>> F;  // edges
-  struct Curve {
-    std::string type;
-    int n = 0;
-    std::vector<double> xyz;
-    const Node* node = nullptr;
-  };
-  std::map<long, Curve> CE, CF;
-};
 
 long common_vertex(const Geo& g, long e1, long e2, const std::string& path, const Node* at) {
   auto a = g.E.at(e1), b = g.E.at(e2);
@@ -267,66 +171,13 @@ long common_vertex(const Geo& g, long e1, long e2, const std::string& path, cons
 Mesh read_nektar(const std::filesystem::path& fp) {
   const std::string path = fp.string();
   const std::string data = detail::slurp(fp);
-  auto root = parse_xml(path, data);
+  auto root = nektar::parse_xml(path, data);
   if (!root || root->name != "NEKTAR") fail(path, root.get(), "not a Nektar++ file (root element is not <NEKTAR>)");
   const Node* geo = root->child("GEOMETRY");
   if (!geo) fail(path, root.get(), "no <GEOMETRY>");
-  if (geo->attr.count("COMPRESSED") || (geo->child("VERTEX") && geo->child("VERTEX")->attr.count("COMPRESSED")))
-    fail(path, geo, "compressed Nektar++ geometry is not supported (convert with NekMesh ...:xml:uncompress)");
   const int dim = geo->attr.count("DIM") ? std::atoi(geo->attr.at("DIM").c_str()) : 3;
-  Geo g;
-  auto need = [&](const char* n) {
-    const Node* x = geo->child(n);
-    if (!x) fail(path, geo, std::string("no <") + n + "> in <GEOMETRY>");
-    return x;
-  };
-  for (auto& v : need("VERTEX")->kids) {
-    auto c = numbers(path, v.get());
-    if (c.size() != 3) fail(path, v.get(), "a vertex needs 3 coordinates");
-    for (double x : c)
-      if (!std::isfinite(x)) fail(path, v.get(), "vertex has a non-finite coordinate");
-    g.V[id_of(path, v.get())] = {c[0], c[1], c[2]};
-  }
-  for (auto& e : need("EDGE")->kids) {
-    auto c = numbers(path, e.get());
-    if (c.size() != 2) fail(path, e.get(), "an edge needs 2 vertex IDs");
-    for (double x : c)
-      if (!g.V.count((long)x)) fail(path, e.get(), "edge refers to vertex " + std::to_string((long)x) + " which is not defined");
-    g.E[id_of(path, e.get())] = {(long)c[0], (long)c[1]};
-  }
-  if (dim == 3)
-    for (auto& f : need("FACE")->kids) {
-      if (f->name != "T" && f->name != "Q") fail(path, f.get(), "face type <" + f->name + "> not supported (T, Q)");
-      auto c = numbers(path, f.get());
-      if (c.size() != (f->name == "T" ? 3u : 4u)) fail(path, f.get(), "a face <" + f->name + "> needs " + (f->name == "T" ? "3" : "4") + " edge IDs");
-      std::vector<long> es;
-      for (double x : c) {
-        if (!g.E.count((long)x)) fail(path, f.get(), "face refers to edge " + std::to_string((long)x) + " which is not defined");
-        es.push_back((long)x);
-      }
-      g.F[id_of(path, f.get())] = es;
-    }
-  int P = 1;
-  if (const Node* cv = geo->child("CURVED"))
-    for (auto& k : cv->kids) {
-      Geo::Curve c;
-      c.type = k->attr.count("TYPE") ? k->attr.at("TYPE") : "";
-      c.n = k->attr.count("NUMPOINTS") ? std::atoi(k->attr.at("NUMPOINTS").c_str()) : 0;
-      c.xyz = numbers(path, k.get());
-      c.node = k.get();
-      if (k->name == "E") {
-        long eid = std::atol(k->attr.count("EDGEID") ? k->attr.at("EDGEID").c_str() : "-1");
-        if (!g.E.count(eid)) fail(path, k.get(), "curved edge refers to an undefined EDGEID");
-        if ((int)c.xyz.size() != 3 * c.n) fail(path, k.get(), "inconsistent counts: NUMPOINTS=" + std::to_string(c.n) + " but " + std::to_string(c.xyz.size()) + " numbers");
-        P = std::max(P, c.n - 1);
-        g.CE[eid] = c;
-      } else if (k->name == "F") {
-        long fid = std::atol(k->attr.count("FACEID") ? k->attr.at("FACEID").c_str() : "-1");
-        if (!g.F.count(fid)) fail(path, k.get(), "curved face refers to an undefined FACEID");
-        if ((int)c.xyz.size() != 3 * c.n) fail(path, k.get(), "inconsistent counts: NUMPOINTS=" + std::to_string(c.n) + " but " + std::to_string(c.xyz.size()) + " numbers");
-        g.CF[fid] = c;
-      }
-    }
+  Geo g = nektar::read_sections(path, geo, dim);
+  const int P = g.order;
   if (P > 6) fail(path, geo, "curved data of order " + std::to_string(P) + " (supported up to 6)");
 
   Mesh m;
@@ -344,40 +195,40 @@ Mesh read_nektar(const std::filesystem::path& fp) {
     std::vector<long> sides;  // edges (2D) or faces (3D)
   };
   std::vector<Elem> elems;
-  for (auto& e : need("ELEMENT")->kids) {
+  for (auto& raw : g.elements) {
+    const Geo::Element* e = &raw;
     Elem el;
-    el.id = id_of(path, e.get());
-    el.letter = e->name.empty() ? '?' : e->name[0];
-    auto c = numbers(path, e.get());
-    for (double x : c) el.sides.push_back((long)x);
-    if (dim == 2 && (e->name == "Q" || e->name == "T")) {
-      el.s = e->name == "Q" ? Shape::Quad : Shape::Tri;
+    el.id = raw.id;
+    el.letter = raw.letter.empty() ? '?' : raw.letter[0];
+    el.sides = raw.sides;
+    if (dim == 2 && (e->letter == "Q" || e->letter == "T")) {
+      el.s = e->letter == "Q" ? Shape::Quad : Shape::Tri;
       const size_t ns = el.s == Shape::Quad ? 4 : 3;
-      if (el.sides.size() != ns) fail(path, e.get(), "element needs " + std::to_string(ns) + " edge IDs");
+      if (el.sides.size() != ns) fail(path, e->node, "element needs " + std::to_string(ns) + " edge IDs");
       for (long s : el.sides)
-        if (!g.E.count(s)) fail(path, e.get(), "element refers to edge " + std::to_string(s) + " which is not defined");
-      for (size_t i = 0; i < ns; ++i) el.verts.push_back(common_vertex(g, el.sides[(i + ns - 1) % ns], el.sides[i], path, e.get()));
-    } else if (dim == 3 && e->name == "A") {
+        if (!g.E.count(s)) fail(path, e->node, "element refers to edge " + std::to_string(s) + " which is not defined");
+      for (size_t i = 0; i < ns; ++i) el.verts.push_back(common_vertex(g, el.sides[(i + ns - 1) % ns], el.sides[i], path, e->node));
+    } else if (dim == 3 && e->letter == "A") {
       el.s = Shape::Tet;
-      if (el.sides.size() != 4) fail(path, e.get(), "a tetrahedron needs 4 face IDs");
+      if (el.sides.size() != 4) fail(path, e->node, "a tetrahedron needs 4 face IDs");
       for (long s : el.sides)
-        if (!g.F.count(s)) fail(path, e.get(), "element refers to face " + std::to_string(s) + " which is not defined");
+        if (!g.F.count(s)) fail(path, e->node, "element refers to face " + std::to_string(s) + " which is not defined");
       const auto& f0 = g.F.at(el.sides[0]);
-      for (int i = 0; i < 3; ++i) el.verts.push_back(common_vertex(g, f0[(i + 2) % 3], f0[i], path, e.get()));
+      for (int i = 0; i < 3; ++i) el.verts.push_back(common_vertex(g, f0[(i + 2) % 3], f0[i], path, e->node));
       std::set<long> all;
       for (long s : el.sides)
         for (long ed : g.F.at(s))
           for (long v : g.E.at(ed)) all.insert(v);
       for (long v : all)
         if (std::find(el.verts.begin(), el.verts.end(), v) == el.verts.end()) el.verts.push_back(v);
-      if (el.verts.size() != 4) fail(path, e.get(), "the faces of this tetrahedron do not close");
+      if (el.verts.size() != 4) fail(path, e->node, "the faces of this tetrahedron do not close");
       // our convention: positive volume of the straight element
       auto X = [&](int i) { return g.V.at(el.verts[i]); };
       double a[3], b[3], c3[3];
       for (int r = 0; r < 3; ++r) a[r] = X(1)[r] - X(0)[r], b[r] = X(2)[r] - X(0)[r], c3[r] = X(3)[r] - X(0)[r];
       double vol = a[0] * (b[1] * c3[2] - b[2] * c3[1]) - a[1] * (b[0] * c3[2] - b[2] * c3[0]) + a[2] * (b[0] * c3[1] - b[1] * c3[0]);
       if (vol < 0) std::swap(el.verts[1], el.verts[2]);
-    } else if (dim == 3 && (e->name == "R" || e->name == "P" || e->name == "H")) {
+    } else if (dim == 3 && (e->letter == "R" || e->letter == "P" || e->letter == "H")) {
       // Nektar++'s prism/pyramid/hexahedron: faces in its order (F0 the base quad, ...);
       // vertex i is the one common to the faces VertexFaceConnectivity[i] (Nektar++'s
       // PrismGeom/HexGeom tables), then renumbered to Gmsh's vertex order.
@@ -385,13 +236,13 @@ Mesh read_nektar(const std::filesystem::path& fp) {
                                                          {1, 4, 5}, {1, 2, 5}, {2, 3, 5}, {3, 4, 5}};
       static const std::vector<std::vector<int>> prismVF = {{0, 1, 4}, {0, 1, 2}, {0, 2, 3}, {0, 3, 4}, {1, 2, 4}, {2, 3, 4}};
       static const std::vector<std::vector<int>> pyrVF = {{0, 1, 4}, {0, 1, 2}, {0, 2, 3}, {0, 3, 4}, {1, 2, 3, 4}};
-      el.s = e->name == "H" ? Shape::Hex : e->name == "R" ? Shape::Prism : Shape::Pyramid;
+      el.s = e->letter == "H" ? Shape::Hex : e->letter == "R" ? Shape::Prism : Shape::Pyramid;
       const auto& VF = el.s == Shape::Hex ? hexVF : el.s == Shape::Prism ? prismVF : pyrVF;
       const size_t nf = el.s == Shape::Hex ? 6 : 5;
-      if (el.sides.size() != nf) fail(path, e.get(), "element <" + e->name + "> needs " + std::to_string(nf) + " face IDs");
+      if (el.sides.size() != nf) fail(path, e->node, "element <" + e->letter + "> needs " + std::to_string(nf) + " face IDs");
       std::vector<std::set<long>> fverts;
       for (long sd : el.sides) {
-        if (!g.F.count(sd)) fail(path, e.get(), "element refers to face " + std::to_string(sd) + " which is not defined");
+        if (!g.F.count(sd)) fail(path, e->node, "element refers to face " + std::to_string(sd) + " which is not defined");
         std::set<long> vs;
         for (long ed : g.F.at(sd))
           for (long v : g.E.at(ed)) vs.insert(v);
@@ -406,7 +257,7 @@ Mesh read_nektar(const std::filesystem::path& fp) {
             if (fverts[fs[k]].count(v)) t.insert(v);
           common = t;
         }
-        if (common.size() != 1) fail(path, e.get(), "the faces of this element do not meet in its vertices as Nektar++ orders them");
+        if (common.size() != 1) fail(path, e->node, "the faces of this element do not meet in its vertices as Nektar++ orders them");
         nv.push_back(*common.begin());
       }
       // Nektar++ -> Gmsh vertex order (the prism's triangles are Nektar's faces 1 and 3)
@@ -425,7 +276,7 @@ Mesh read_nektar(const std::filesystem::path& fp) {
         }
       }
     } else {
-      fail(path, e.get(), "element type <" + e->name + "> in a " + std::to_string(dim) +
+      fail(path, e->node, "element type <" + e->letter + "> in a " + std::to_string(dim) +
                               "D mesh is not supported (supported: T, Q in 2D; A, R, P, H in 3D)");
     }
     elems.push_back(std::move(el));
@@ -833,7 +684,7 @@ Mesh read_nektar(const std::filesystem::path& fp) {
     std::map<std::set<std::uint32_t>, std::pair<int, std::vector<std::uint32_t>>> side_nodes;  // unused placeholder
     (void)side_nodes;
     for (auto& c : comp->kids) {
-      long cid = id_of(path, c.get());
+      long cid = nektar::id_of(path, c.get());
       std::string t = c->text;
       size_t lb = t.find('['), rb = t.find(']');
       if (lb == std::string::npos || rb == std::string::npos) fail(path, c.get(), "composite without [list]");
@@ -908,300 +759,6 @@ Mesh read_nektar(const std::filesystem::path& fp) {
     throw MeshIOError(path + ": " + e.what());
   }
   return m;
-}
-
-namespace {
-// Output buffer for write_nektar: numbers by std::to_chars (doubles as %.17g, what the stream
-// with precision 17 wrote), flushed to the file in 8 MB blocks.
-struct NekOut {
-  std::ofstream f;
-  std::string s;
-  const std::filesystem::path& fp;
-  explicit NekOut(const std::filesystem::path& p) : f(p, std::ios::binary), fp(p) {
-    if (!f) throw MeshIOError(fp.string() + ": cannot open the file for writing");
-    s.reserve((8u << 20) + 4096);
-  }
-  void flush_if_full() {
-    if (s.size() >= (8u << 20)) flush();
-  }
-  void flush() {
-    f.write(s.data(), static_cast<std::streamsize>(s.size()));
-    if (!f) throw MeshIOError(fp.string() + ": write failed (disk full?)");
-    s.clear();
-  }
-  NekOut& operator<<(std::string_view t) {
-    s.append(t);
-    return *this;
-  }
-  NekOut& operator<<(const char* t) { return *this << std::string_view(t); }
-  NekOut& operator<<(const std::string& t) { return *this << std::string_view(t); }
-  NekOut& operator<<(long v) {
-    char buf[24];
-    auto r = std::to_chars(buf, buf + sizeof buf, v);
-    s.append(buf, r.ptr);
-    return *this;
-  }
-  NekOut& operator<<(int v) { return *this << static_cast<long>(v); }
-  NekOut& operator<<(double v) {
-    char buf[40];
-    auto r = std::to_chars(buf, buf + sizeof buf, v, std::chars_format::general, 17);
-    s.append(buf, r.ptr);
-    return *this;
-  }
-};
-
-// A face's vertices, sorted, compared as std::set<uint32_t> compares (lexicographically, a
-// prefix first): the order the faces were numbered in when they were keyed by std::set.
-struct FaceKey {
-  std::uint32_t v[4] = {0, 0, 0, 0};
-  std::uint8_t n = 0;
-  bool operator<(const FaceKey& o) const { return std::lexicographical_compare(v, v + n, o.v, o.v + o.n); }
-  bool operator==(const FaceKey& o) const { return n == o.n && std::equal(v, v + n, o.v); }
-};
-FaceKey face_key(const std::uint32_t* nd, const int* local, int count) {
-  if (count < 3 || count > 4) throw std::logic_error("Nektar++ writer: a face with " + std::to_string(count) + " vertices");
-  FaceKey k;
-  k.n = static_cast<std::uint8_t>(count);
-  for (int i = 0; i < count; ++i) k.v[i] = nd[local[i]];
-  std::sort(k.v, k.v + count);
-  return k;
-}
-// Where an edge or face was first seen: block, element, local index (its nodes come from there).
-struct Seen {
-  std::uint32_t block, element, local;
-};
-}  // namespace
-
-// Numbering follows the first writer of this format (maps keyed by vertex pairs and vertex
-// sets): vertices by node index, edges by their vertex pair, faces by their sorted vertices, the
-// nodes of an edge or face from the first element that uses it. Sorted vectors instead of maps
-// of sets: the demo's order-4 mesh (1.3M nodes) took 47 s, mostly allocation.
-void write_nektar(const Mesh& m, const std::filesystem::path& fp) {
-  m.check();
-  const int dim = m.dimension();
-  const int P = m.order();
-  for (auto& b : m.blocks) {
-    if (dimension(b.shape) != dim) continue;
-    bool ok = (dim == 2 && (b.shape == Shape::Tri || b.shape == Shape::Quad)) || dim == 3;
-    if (!ok)
-      throw MeshIOError(fp.string() + ": Nektar++ output supports triangles/quadrilaterals (2D) and tetrahedra, prisms, pyramids, hexahedra (3D); this mesh has " +
-                        shape_name(b.shape) + " elements");
-    if (b.order != P) throw MeshIOError(fp.string() + ": Nektar++ output needs one element order for all elements");
-  }
-  NekOut o(fp);
-  o << "<?xml version=\"1.0\" encoding=\"utf-8\" ?>\n<NEKTAR>\n  <GEOMETRY DIM=\"" << dim << "\" SPACE=\"3\">\n";
-  // vertices: element vertex nodes in node order
-  std::vector<long> vid(m.num_nodes(), -1);
-  for (auto& b : m.blocks)
-    if (dimension(b.shape) == dim)
-      for (size_t e = 0; e < b.size(); ++e)
-        for (int v = 0; v < num_vertices(b.shape); ++v) vid[b.element(e)[v]] = 0;
-  long k = 0;
-  o << "    <VERTEX>\n";
-  for (std::uint32_t n = 0; n < vid.size(); ++n) {
-    if (vid[n] < 0) continue;
-    vid[n] = k++;
-    o << "      <V ID=\"" << vid[n] << "\">" << m.x[n] << " " << m.y[n] << " " << m.z[n] << "</V>\n";
-    o.flush_if_full();
-  }
-  o << "    </VERTEX>\n";
-  // edges and faces: every use with where it was seen, sorted by key then first use, deduplicated
-  using EdgeKey = std::pair<std::uint32_t, std::uint32_t>;
-  std::vector<std::pair<EdgeKey, Seen>> edges;
-  std::vector<std::pair<FaceKey, Seen>> faces;
-  for (std::uint32_t bi = 0; bi < m.blocks.size(); ++bi) {
-    auto& b = m.blocks[bi];
-    if (dimension(b.shape) != dim) continue;
-    for (size_t e = 0; e < b.size(); ++e) {
-      const std::uint32_t* nd = b.element(e);
-      const auto& ev = edge_vertices(b.shape);
-      for (std::uint32_t ei = 0; ei < ev.size(); ++ei) {
-        const std::uint32_t va = nd[ev[ei][0]], vc = nd[ev[ei][1]];
-        edges.push_back({{std::min(va, vc), std::max(va, vc)}, {bi, static_cast<std::uint32_t>(e), ei}});
-      }
-      if (dim == 3) {
-        const auto& fvs = face_vertices(b.shape);
-        for (std::uint32_t fi = 0; fi < fvs.size(); ++fi)
-          faces.push_back({face_key(nd, fvs[fi].data(), (int)fvs[fi].size()), {bi, static_cast<std::uint32_t>(e), fi}});
-      }
-    }
-  }
-  auto seen_before = [](const Seen& a, const Seen& c) {
-    return std::tie(a.block, a.element, a.local) < std::tie(c.block, c.element, c.local);
-  };
-  std::sort(edges.begin(), edges.end(), [&](const auto& a, const auto& c) {
-    return a.first != c.first ? a.first < c.first : seen_before(a.second, c.second);
-  });
-  edges.erase(std::unique(edges.begin(), edges.end(), [](const auto& a, const auto& c) { return a.first == c.first; }), edges.end());
-  std::sort(faces.begin(), faces.end(), [&](const auto& a, const auto& c) {
-    return !(a.first == c.first) ? a.first < c.first : seen_before(a.second, c.second);
-  });
-  faces.erase(std::unique(faces.begin(), faces.end(), [](const auto& a, const auto& c) { return a.first == c.first; }), faces.end());
-  // id of the edge a-b (-1 if no element has it)
-  auto eid = [&](std::uint32_t a, std::uint32_t c) -> long {
-    const EdgeKey key{std::min(a, c), std::max(a, c)};
-    auto it = std::lower_bound(edges.begin(), edges.end(), key, [](const auto& x, const EdgeKey& y) { return x.first < y; });
-    return it != edges.end() && it->first == key ? it - edges.begin() : -1;
-  };
-  auto find_face = [&](const FaceKey& key) -> long {
-    auto it = std::lower_bound(faces.begin(), faces.end(), key, [](const auto& x, const FaceKey& y) { return x.first < y; });
-    return it != faces.end() && it->first == key ? it - faces.begin() : -1;
-  };
-  // nodes of edge i from key.first to key.second, of face i in its first element's face order
-  auto edge_line = [&](std::size_t i, std::vector<std::uint32_t>& line) {
-    const Seen& w = edges[i].second;
-    const auto& b = m.blocks[w.block];
-    const std::uint32_t* nd = b.element(w.element);
-    const auto& loc = edge_nodes(b.shape, P)[w.local];  // v0, v1, interior from v0
-    line.assign(1, nd[loc[0]]);
-    for (size_t q = 2; q < loc.size(); ++q) line.push_back(nd[loc[q]]);
-    line.push_back(nd[loc[1]]);
-    if (nd[loc[0]] != edges[i].first.first) std::reverse(line.begin(), line.end());
-  };
-  auto face_first = [&](std::size_t i) {
-    const Seen& w = faces[i].second;
-    const auto& b = m.blocks[w.block];
-    return std::make_pair(b.element(w.element), &b);
-  };
-  o << "    <EDGE>\n";
-  for (std::size_t i = 0; i < edges.size(); ++i) {
-    o << "      <E ID=\"" << (long)i << "\">" << vid[edges[i].first.first] << " " << vid[edges[i].first.second] << "</E>\n";
-    o.flush_if_full();
-  }
-  o << "    </EDGE>\n";
-  if (dim == 3) {
-    o << "    <FACE>\n";
-    for (std::size_t i = 0; i < faces.size(); ++i) {
-      auto [nd, b] = face_first(i);
-      const auto& fv = face_vertices(b->shape)[faces[i].second.local];
-      const char* L = fv.size() == 4 ? "Q" : "T";
-      o << "      <" << L << " ID=\"" << (long)i << "\">";
-      for (size_t q = 0; q < fv.size(); ++q) o << (q ? " " : "") << eid(nd[fv[q]], nd[fv[(q + 1) % fv.size()]]);
-      o << "</" << L << ">\n";
-      o.flush_if_full();
-    }
-    o << "    </FACE>\n";
-  }
-  o << "    <ELEMENT>\n";
-  std::map<std::pair<int, std::string>, std::vector<long>> dom_ids;  // (entity tag, letter) -> element ids
-  long elid = 0;
-  // Nektar++'s face order of each shape, as Gmsh vertex indices (prism: Nektar's
-  // vertices 0,1,2,3,4,5 are our 0,1,4,3,2,5: its triangles are faces 1 and 3)
-  static const std::vector<std::vector<int>> FT = {{0, 1, 2}, {0, 1, 3}, {1, 2, 3}, {0, 2, 3}};
-  static const std::vector<std::vector<int>> FH = {{0, 1, 2, 3}, {0, 1, 5, 4}, {1, 2, 6, 5}, {3, 2, 6, 7}, {0, 3, 7, 4}, {4, 5, 6, 7}};
-  static const std::vector<std::vector<int>> FR = {{0, 1, 4, 3}, {0, 1, 2}, {1, 4, 5, 2}, {3, 4, 5}, {0, 3, 5, 2}};
-  static const std::vector<std::vector<int>> FP = {{0, 1, 2, 3}, {0, 1, 4}, {1, 2, 4}, {3, 2, 4}, {0, 3, 4}};
-  for (auto& b : m.blocks) {
-    if (dimension(b.shape) != dim) continue;
-    const char* L = dim == 3 ? (b.shape == Shape::Tet ? "A" : b.shape == Shape::Hex ? "H" : b.shape == Shape::Prism ? "R" : "P")
-                             : (b.shape == Shape::Quad ? "Q" : "T");
-    auto& ids = dom_ids[{b.entity_tag, L}];
-    const auto& F = b.shape == Shape::Tet ? FT : b.shape == Shape::Hex ? FH : b.shape == Shape::Prism ? FR : FP;
-    for (size_t e = 0; e < b.size(); ++e) {
-      const std::uint32_t* nd = b.element(e);
-      o << "      <" << L << " ID=\"" << elid << "\">";
-      if (dim == 2) {
-        int nv = num_vertices(b.shape);
-        for (int v = 0; v < nv; ++v) o << (v ? " " : "") << eid(nd[v], nd[(v + 1) % nv]);
-      } else {
-        for (size_t f = 0; f < F.size(); ++f) o << (f ? " " : "") << find_face(face_key(nd, F[f].data(), (int)F[f].size()));
-      }
-      o << "</" << L << ">\n";
-      o.flush_if_full();
-      ids.push_back(elid++);
-    }
-  }
-  o << "    </ELEMENT>\n";
-  if (P >= 2) {
-    o << "    <CURVED>\n";
-    std::vector<std::uint32_t> line;
-    for (std::size_t i = 0; i < edges.size(); ++i) {
-      edge_line(i, line);
-      o << "      <E ID=\"" << (long)i << "\" EDGEID=\"" << (long)i << "\" NUMPOINTS=\"" << P + 1 << "\" TYPE=\"PolyEvenlySpaced\">";
-      for (auto n : line) o << " " << m.x[n] << " " << m.y[n] << " " << m.z[n];
-      o << " </E>\n";
-      o.flush_if_full();
-    }
-    if (dim == 3) {
-      long cid = 0;
-      // Nektar order of the equispaced triangle: vertices, edges, interior row by row
-      std::vector<int> order;
-      {
-        const auto& tl = lattice(Shape::Tri, P);
-        std::map<Lattice, int> at;
-        for (int i = 0; i < (int)tl.size(); ++i) at[tl[i]] = i;
-        order = {at[{0, 0, 0}], at[{P, 0, 0}], at[{0, P, 0}]};
-        for (int i = 1; i < P; ++i) order.push_back(at[{i, 0, 0}]);
-        for (int i = 1; i < P; ++i) order.push_back(at[{P - i, i, 0}]);
-        for (int i = 1; i < P; ++i) order.push_back(at[{0, P - i, 0}]);
-        for (int j = 1; j < P; ++j)
-          for (int i = 1; i + j < P; ++i) order.push_back(at[{i, j, 0}]);
-      }
-      // quadrilateral faces: (P+1)^2 equispaced points, index i + (P+1) j in the face's
-      // frame (vertex 0 = common vertex of its edges 3 and 0, i towards vertex 1, j towards 3)
-      std::vector<int> qorder((P + 1) * (P + 1));
-      {
-        const auto& ql = lattice(Shape::Quad, P);
-        for (int i = 0; i < (int)ql.size(); ++i) qorder[ql[i][0] + (P + 1) * ql[i][1]] = i;
-      }
-      for (std::size_t i = 0; i < faces.size(); ++i) {
-        const bool quad = faces[i].first.n == 4;
-        if (!quad && P < 3) continue;
-        auto [nd, b] = face_first(i);
-        const auto& fn = face_nodes(b->shape, P)[faces[i].second.local];
-        o << "      <F ID=\"" << cid++ << "\" FACEID=\"" << (long)i << "\" NUMPOINTS=\""
-          << (quad ? (P + 1) * (P + 1) : (P + 1) * (P + 2) / 2) << "\" TYPE=\"" << (quad ? "PolyEvenlySpaced" : "NodalTriEvenlySpaced") << "\">";
-        for (int q : quad ? qorder : order) {
-          auto n = nd[fn[q]];
-          o << " " << m.x[n] << " " << m.y[n] << " " << m.z[n];
-        }
-        o << " </F>\n";
-        o.flush_if_full();
-      }
-    }
-    o << "    </CURVED>\n";
-  }
-  // composites: one per domain entity, one per boundary entity
-  o << "    <COMPOSITE>\n";
-  std::vector<long> domain;
-  long next_c = 0;
-  auto ranges = [](const std::vector<long>& ids) {
-    std::string s;
-    for (size_t i = 0; i < ids.size();) {
-      size_t j = i;
-      while (j + 1 < ids.size() && ids[j + 1] == ids[j] + 1) ++j;
-      if (!s.empty()) s += ",";
-      s += std::to_string(ids[i]) + (j > i ? "-" + std::to_string(ids[j]) : "");
-      i = j + 1;
-    }
-    return s;
-  };
-  for (auto& [tl, ids] : dom_ids) {
-    if (ids.empty()) continue;
-    const int tag = tl.first;
-    const std::string L = tl.second;
-    std::string name = m.group_name(dim, tag);
-    o << "      <C ID=\"" << next_c << "\"" << (name.empty() ? "" : " NAME=\"" + name + "\"") << "> " << L << "[" << ranges(ids) << "] </C>\n";
-    domain.push_back(next_c++);
-  }
-  std::map<int, std::vector<long>> bnd;
-  for (auto& b : m.blocks) {
-    if (dimension(b.shape) != dim - 1) continue;
-    for (size_t e = 0; e < b.size(); ++e) {
-      const std::uint32_t* nd = b.element(e);
-      static const int kVertices[4] = {0, 1, 2, 3};
-      const long id = dim == 3 ? find_face(face_key(nd, kVertices, num_vertices(b.shape))) : eid(nd[0], nd[1]);
-      if (id >= 0) bnd[b.entity_tag].push_back(id);
-    }
-  }
-  for (auto& [tag, ids] : bnd) {
-    std::sort(ids.begin(), ids.end());
-    std::string name = m.group_name(dim - 1, tag);
-    o << "      <C ID=\"" << next_c++ << "\"" << (name.empty() ? "" : " NAME=\"" + name + "\"") << "> " << (dim == 3 ? "F" : "E") << "["
-      << ranges(ids) << "] </C>\n";
-  }
-  o << "    </COMPOSITE>\n    <DOMAIN> C[" << ranges(domain) << "] </DOMAIN>\n  </GEOMETRY>\n</NEKTAR>\n";
-  o.flush();
 }
 
 }  // namespace meshflow::io
