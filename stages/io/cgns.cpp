@@ -192,7 +192,6 @@ void check_writable(const Mesh& m, const std::filesystem::path& path, int dim) {
   }
   if (m.num_nodes() > kMaxCg || m.num_elements() > kMaxCg)
     throw MeshIOError(path.string() + ": too many nodes or elements for libcgns's 32-bit sizes");
-  std::set<std::string> names;
   for (auto& [g, secs] : boundary_sections(m, dim))
     for (auto& s : secs)
       if (s.name.size() > 32 || g.size() > 32)
@@ -216,6 +215,9 @@ void write_coordinates(int fn, int B, int Z, const Mesh& m, const std::filesyste
 cgsize_t write_section(int fn, int B, int Z, const Section& s, cgsize_t first, const std::filesystem::path& p) {
   const auto& perm = detail::cgns_to_gmsh(s.shape, s.order);
   const int npe = model::num_nodes(s.shape, s.order);
+  if (s.size() * npe > kMaxCg)
+    throw MeshIOError(p.string() + ": section " + s.name + " of " + std::to_string(s.size()) +
+                      " elements is too large for libcgns's 32-bit sizes");
   std::vector<cgsize_t> conn;
   conn.reserve(s.size() * npe);
   for (auto* b : s.blocks)

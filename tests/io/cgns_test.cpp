@@ -406,7 +406,7 @@ TEST_CASE("CGNS order 2: VTK's CGNS reader puts every node of every cell where o
   CHECK(out.find("cells " + n + " " + n + " same " + n + " ") != std::string::npos);
 }
 
-TEST_CASE("CGNS bad input: missing file, not CGNS, truncated, order 5-6 meshes; convert exits 2 and leaves no file") {
+TEST_CASE("CGNS bad input: missing file, not CGNS, truncated, order 5-6 meshes, convert exits 2 and leaves no file") {
   auto expect_error = [](const fs::path& p, const std::string& msg) {
     INFO(p);
     try {
