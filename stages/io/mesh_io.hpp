@@ -51,7 +51,8 @@ void write_nektar(const model::Mesh& m, const std::filesystem::path& path);
 // FamilyName = the group and BCType from the name (wall* BCWall, farfield BCFarfield,
 // symmetry* BCSymmetryPlane, inlet/outlet BCInflow/BCOutflow, else FamilySpecified with a
 // BCTypeUserDefined family), and a Family_t per group. Boundary elements in no physical group
-// form groups "surface_<entity tag>"; lines and points are not written. No DimensionalUnits:
+// form groups "surface_<entity tag>"; a boundary entity in several groups is written under its
+// first (a BC's range holds each element once); lines and points are not written. No DimensionalUnits:
 // the mesh does not know its length unit (DataClass NormalizedByUnknownDimensional instead). Orders above 4 (CGNS has no such types), meshes
 // past libcgns's 32-bit sizes and group names past 32 characters are refused (MeshIOError)
 // before the file is made; the file is written under a temporary name and renamed.
