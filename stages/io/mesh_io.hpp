@@ -1,6 +1,7 @@
 // meshflow mesh formats: Gmsh MSH 4.1 (ASCII and binary, read+write) and MSH 2.2 (ASCII,
 // read), VTU (XML, appended raw binary, VTK Lagrange cells; write+read), Nektar++ XML
-// (compressed B64Z-LittleEndian sections, as NekMesh writes them, or plain; read+write).
+// (compressed B64Z-LittleEndian sections, as NekMesh writes them, or plain; read+write), CGNS
+// (libcgns: unstructured zone, orders 1-4; write+read).
 //
 // Every reader throws MeshIOError on bad input with a message naming the file and the line
 // (text) or byte offset (binary) and what is wrong: truncation, wrong magic/version, unknown
@@ -25,13 +26,13 @@ struct MeshIOError : std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
-enum class MeshFormat { MshBinary, MshAscii, Vtu, Nektar, NektarPlain };
+enum class MeshFormat { MshBinary, MshAscii, Vtu, Nektar, NektarPlain, Cgns };
 
-// By extension: .msh (any supported MSH version/encoding), .vtu, .xml. Without an extension
+// By extension: .msh (any supported MSH version/encoding), .vtu, .xml, .cgns. Without an extension
 // match (e.g. a file in the artifact store), the content decides ($MeshFormat, <VTKFile,
 // <NEKTAR).
 model::Mesh read_mesh(const std::filesystem::path& path);
-// By extension (.msh: binary MSH 4.1; .vtu; .xml) unless `format` is given.
+// By extension (.msh: binary MSH 4.1; .vtu; .xml; .cgns) unless `format` is given.
 void write_mesh(const model::Mesh& m, const std::filesystem::path& path);
 void write_mesh(const model::Mesh& m, const std::filesystem::path& path, MeshFormat format);
 
@@ -45,6 +46,29 @@ model::Mesh read_nektar(const std::filesystem::path& path);
 // unless `compressed` is false; with an EXPANSIONS section (the mesh's order, every volume
 // composite) so that the file is a session Nektar++ can start from.
 void write_nektar(const model::Mesh& m, const std::filesystem::path& path, bool compressed = true);
+
+// CGNS through libcgns, CGNS/ADF storage (HDF5 files carry time stamps): one base (cell dimension = the mesh's, physical 3), one
+// unstructured zone "Zone" whose FamilyName is the volume's physical group; coordinates
+// CoordinateX/Y/Z (RealDouble) of every node; one Elements_t section per cell shape and order
+// (complete Lagrange types TETRA_4/10/20/35, PYRA_5/14/30/55, PENTA_6/18/40/75,
+// HEXA_8/27/64/125; nodes in CGNS order), then per boundary physical group its TRI/QUAD
+// sections, a BC_t over their element range (PointRange, GridLocation FaceCenter) with
+// FamilyName = the group and BCType from the name (wall* BCWall, farfield BCFarfield,
+// symmetry* BCSymmetryPlane, inlet/outlet BCInflow/BCOutflow, else FamilySpecified with a
+// BCTypeUserDefined family), and a Family_t per group. Boundary elements in no physical group
+// form groups "surface_<entity tag>"; a boundary entity in several groups is written under its
+// first (a BC's range holds each element once); lines and points are not written. No DimensionalUnits:
+// the mesh does not know its length unit (DataClass NormalizedByUnknownDimensional instead). Orders above 4 (CGNS has no such types), meshes
+// past libcgns's 32-bit sizes and group names past 32 characters are refused (MeshIOError)
+// before the file is made; the file is written under a temporary name and renamed.
+void write_cgns(const model::Mesh& m, const std::filesystem::path& path);
+// Reads what write_cgns writes and other tools' single-zone unstructured files of those types:
+// coordinates, cells (one entity), boundary sections grouped by the BC that names their
+// elements (its FamilyName, else its name; else the section's name) as physical groups of the
+// boundary dimension; the zone's FamilyName as the cells' group. MIXED/NGON sections and
+// incomplete types (QUAD_8, HEXA_20, ...) are refused, edge and point sections of a 3D zone
+// skipped.
+model::Mesh read_cgns(const std::filesystem::path& path);
 
 // Solver-ready MSH (what PyFR's importer and meshio take; the `msh-ascii`, `msh-plain` and
 // `pyfr` formats and `meshflow convert` to .msh): every element written belongs to a physical

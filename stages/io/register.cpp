@@ -1,5 +1,5 @@
 // stages/io's registrations with the engine: the "mesh" artifact type (stored as binary MSH
-// 4.1; formats msh (the stored file), msh-ascii, msh-plain and pyfr (solver-ready), vtu, nektar (compressed), nektar-plain; summary =
+// 4.1; formats msh (the stored file), msh-ascii, msh-plain and pyfr (solver-ready), vtu, nektar (compressed), nektar-plain, cgns; summary =
 // mesh_stats) and the commands `meshflow quality FILE [--json] [--threads N]` and
 // `meshflow convert IN OUT [--ascii] [--parametric] [--all-elements] [--plain]`.
 #include "engine/artifact_type.hpp"
@@ -29,6 +29,7 @@ std::string sniff(const std::filesystem::path& p) {
   if (s.rfind("$MeshFormat", 0) == 0) return ".msh";
   if (s.find("<VTKFile") != std::string::npos) return ".vtu";
   if (s.find("<NEKTAR") != std::string::npos) return ".xml";
+  if (s.rfind("\x89HDF\r\n\x1a\n", 0) == 0 || s.compare(4, 20, "ADF Database Version") == 0) return ".cgns";
   return {};
 }
 }  // namespace
@@ -36,11 +37,12 @@ std::string sniff(const std::filesystem::path& p) {
 model::Mesh read_mesh(const std::filesystem::path& path) {
   if (!std::filesystem::exists(path)) throw MeshIOError(path.string() + ": no such file");
   std::string e = ext_of(path);
-  if (e != ".msh" && e != ".vtu" && e != ".xml") e = sniff(path);
+  if (e != ".msh" && e != ".vtu" && e != ".xml" && e != ".cgns") e = sniff(path);
   if (e == ".msh") return read_msh(path);
   if (e == ".vtu") return read_vtu(path);
   if (e == ".xml") return read_nektar(path);
-  throw MeshIOError(path.string() + ": unknown mesh format (expected .msh, .vtu or Nektar++ .xml)");
+  if (e == ".cgns") return read_cgns(path);
+  throw MeshIOError(path.string() + ": unknown mesh format (expected .msh, .vtu, Nektar++ .xml or .cgns)");
 }
 
 void write_mesh(const model::Mesh& m, const std::filesystem::path& path, MeshFormat f) {
@@ -50,6 +52,7 @@ void write_mesh(const model::Mesh& m, const std::filesystem::path& path, MeshFor
     case MeshFormat::Vtu: return write_vtu(m, path);
     case MeshFormat::Nektar: return write_nektar(m, path, true);
     case MeshFormat::NektarPlain: return write_nektar(m, path, false);
+    case MeshFormat::Cgns: return write_cgns(m, path);
   }
 }
 
@@ -58,7 +61,8 @@ void write_mesh(const model::Mesh& m, const std::filesystem::path& path) {
   if (e == ".msh") return write_msh(m, path, true);
   if (e == ".vtu") return write_vtu(m, path);
   if (e == ".xml") return write_nektar(m, path);
-  throw MeshIOError(path.string() + ": unknown mesh format for writing (use .msh, .vtu or .xml)");
+  if (e == ".cgns") return write_cgns(m, path);
+  throw MeshIOError(path.string() + ": unknown mesh format for writing (use .msh, .vtu, .xml or .cgns)");
 }
 
 namespace {
@@ -93,7 +97,7 @@ int quality_cmd(const std::vector<std::string>& args) {
 
 const char* kConvertUsage =
     "usage: meshflow convert IN OUT [--ascii] [--parametric] [--all-elements] [--plain]\n"
-    "  formats by extension: .msh (Gmsh MSH 4.1) .vtu .xml (Nektar++)\n"
+    "  formats by extension: .msh (Gmsh MSH 4.1) .vtu .xml (Nektar++) .cgns (CGNS/ADF, orders 1-4)\n"
     "  to .msh: binary unless --ascii; solver-ready by default: no CAD parameters on the nodes (--parametric keeps\n"
     "  them, for Gmsh) and only elements in a physical group (--all-elements keeps the CAD curves' edges too)\n"
     "  to .xml: Nektar++'s compressed geometry (as NekMesh writes it) unless --plain (plain-text numbers)\n";
@@ -184,7 +188,8 @@ const ArtifactTypeRegistrar mesh_type({
                 {"pyfr", solver_msh(".pyfr.msh", "Gmsh MSH 4.1 ASCII for `pyfr import`: solver-ready, physical tags unique, periodic pair named periodic_0_l / periodic_0_r", false, true)},
                 {"vtu", fmt(".vtu", "VTK XML unstructured grid with Lagrange cells", MeshFormat::Vtu)},
                 {"nektar", fmt(".xml", "Nektar++ XML session (compressed geometry, as NekMesh writes it, and EXPANSIONS)", MeshFormat::Nektar)},
-                {"nektar-plain", fmt(".plain.xml", "Nektar++ XML session with plain-text geometry (NekMesh's :xml:uncompress form)", MeshFormat::NektarPlain)}},
+                {"nektar-plain", fmt(".plain.xml", "Nektar++ XML session with plain-text geometry (NekMesh's :xml:uncompress form)", MeshFormat::NektarPlain)},
+                {"cgns", fmt(".cgns", "CGNS (ADF): one unstructured zone, Lagrange sections at the mesh's order (1-4), a BC and family per boundary group", MeshFormat::Cgns)}},
     .summarize = [](const std::filesystem::path& p) { return model::mesh_stats(read_msh(p)); },
 });
 
@@ -192,7 +197,7 @@ const CommandRegistrar quality_reg({"quality", "quality FILE [--json] [--threads
                                     "validity (Bezier bounds of det J), scaled Jacobian, aspect ratio of a mesh",
                                     quality_cmd});
 const CommandRegistrar convert_reg({"convert", "convert IN OUT [--ascii] [--parametric] [--all-elements] [--plain]",
-                                    "convert meshes between .msh (4.1; reads 2.2), .vtu and Nektar++ .xml", convert_cmd});
+                                    "convert meshes between .msh (4.1; reads 2.2), .vtu, Nektar++ .xml and .cgns", convert_cmd});
 
 }  // namespace
 }  // namespace meshflow::io
