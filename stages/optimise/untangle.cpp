@@ -100,6 +100,11 @@ struct ElemRef {
 struct SampleTable {
   int n = 0, ns = 0;
   std::vector<double> dN;
+  // The same gradients as one matrix, rows (sample s, reference direction c) = 3 s + c, columns
+  // nodes a: J of every sample at once is D X (X: nodes x 3), and the gradient of a sum of terms
+  // M_s : J_s over the nodes is D^T M; two small dense products (Eigen's blocked kernels) instead
+  // of a scalar loop per sample (84% of the untangling time on DLR-F6 was that loop).
+  Eigen::MatrixXd D;
   Eigen::MatrixXd T, Ta, Tb;
 };
 
@@ -184,6 +189,10 @@ const SampleTable& samples(Shape s, int order, int lattice) {
   t.ns = int(pts.size());
   t.dN.resize(std::size_t(t.ns) * t.n * 3);
   for (int k = 0; k < t.ns; ++k) b.grad(pts[k], &t.dN[std::size_t(k) * t.n * 3]);
+  t.D.resize(3 * t.ns, t.n);
+  for (int k = 0; k < t.ns; ++k)
+    for (int a = 0; a < t.n; ++a)
+      for (int c = 0; c < 3; ++c) t.D(3 * k + c, a) = t.dN[(std::size_t(k) * t.n + a) * 3 + c];
   return cache.emplace(key, std::move(t)).first->second;
 }
 
@@ -305,32 +314,32 @@ struct Patch {
       std::vector<std::pair<int, double>>& Gt = gterms[ie];
       Et.clear();
       Gt.clear();
-      thread_local std::vector<double> X;
       const auto& b = m.blocks[elems[ie].block];
       const std::uint32_t* nodes = b.element(elems[ie].index);
       const auto& t = samples(b.shape, b.order, lattice);
       const std::vector<int>& slot = slots[ie];
-      X.resize(std::size_t(t.n) * 3);
+      // node coordinates, one row per node
+      thread_local Eigen::MatrixXd X, JT, M, G;
+      X.resize(t.n, 3);
       for (int a = 0; a < t.n; ++a) {
         if (slot[a] >= 0) {
-          for (int c = 0; c < 3; ++c) X[3 * a + c] = xf[3 * slot[a] + c];
+          for (int c = 0; c < 3; ++c) X(a, c) = xf[3 * slot[a] + c];
         } else {
-          X[3 * a] = m.x[nodes[a]];
-          X[3 * a + 1] = m.y[nodes[a]];
-          X[3 * a + 2] = m.z[nodes[a]];
+          X(a, 0) = m.x[nodes[a]];
+          X(a, 1) = m.y[nodes[a]];
+          X(a, 2) = m.z[nodes[a]];
         }
       }
       const double w = 1.0 / t.ns;
-      // det J and its cofactor matrix at every sample
+      // J^T of every sample: JT(3 s + c, r) = dx_r / dxi_c
+      JT.noalias() = t.D * X;
       thread_local std::vector<double> R, Cof;
       R.resize(t.ns);
       Cof.resize(9 * std::size_t(t.ns));
       for (int s = 0; s < t.ns; ++s) {
-        const double* dN = &t.dN[std::size_t(s) * t.n * 3];
-        double J[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
-        for (int a = 0; a < t.n; ++a)
-          for (int r = 0; r < 3; ++r)
-            for (int c = 0; c < 3; ++c) J[3 * r + c] += X[3 * a + r] * dN[3 * a + c];
+        double J[9];
+        for (int r = 0; r < 3; ++r)
+          for (int c = 0; c < 3; ++c) J[3 * r + c] = JT(3 * s + c, r);
         R[s] = det3(J) / jref[ie];
         double* C = &Cof[9 * std::size_t(s)];
         C[0] = J[4] * J[8] - J[5] * J[7];
@@ -376,20 +385,19 @@ struct Patch {
           }
       }
       if (!any) return;
+      // dE/dx_(a,r) = sum_s dR_s / jref * sum_c cof(J_s)(r, c) dN_(s,a,c) = (D^T M)(a, r) with
+      // M(3 s + c, r) = dR_s / jref * cof(J_s)(r, c)
+      M.resize(3 * t.ns, 3);
       for (int s = 0; s < t.ns; ++s) {
-        if (dR[s] == 0) continue;
-        const double* dN = &t.dN[std::size_t(s) * t.n * 3];
-        const double* C = &Cof[9 * std::size_t(s)];
         const double k = dR[s] / jref[ie];  // dR/dJ = cof(J) / jref
-        for (int a = 0; a < t.n; ++a) {
-          if (slot[a] < 0) continue;
-          for (int r2 = 0; r2 < 3; ++r2) {
-            double v = 0;
-            for (int c = 0; c < 3; ++c) v += C[3 * r2 + c] * dN[3 * a + c];
-            Gt.push_back({3 * slot[a] + r2, k * v});
-          }
-        }
+        const double* C = &Cof[9 * std::size_t(s)];
+        for (int c = 0; c < 3; ++c)
+          for (int r2 = 0; r2 < 3; ++r2) M(3 * s + c, r2) = k * C[3 * r2 + c];
       }
+      G.noalias() = t.D.transpose() * M;
+      for (int a = 0; a < t.n; ++a)
+        if (slot[a] >= 0)
+          for (int r2 = 0; r2 < 3; ++r2) Gt.push_back({3 * slot[a] + r2, G(a, r2)});
     };
     if (arena && elems.size() > 1)
       arena->execute([&] {
