@@ -119,7 +119,7 @@ void run(StageContext& ctx) {
 }
 
 StageRegistrar reg({.kind = "optimise",
-                    .version = 2,
+                    .version = 4,
                     .summary = "surface node optimisation: spring energy of high-order edges/faces in CAD parameter space, bounded L-BFGS-B, validity kept",
                     .libraries = {"LBFGSpp 0.1.0"},
                     .run = run});
