@@ -261,18 +261,9 @@ int cli_main(int argc, char** argv) {
   try {
     wf = load_workflow(workflow_file, sets);
     variants = matrix_variants(wf);
-    if (!variants.empty() && variant.empty() && run->parsed()) {  // the whole study
-      RunOptions ro;
-      ro.cache_dir = cache_dir;
-      ro.out_dir = out_dir;
-      ro.jobs = jobs;
-      ro.threads = threads;
-      ro.verbose = verbose;
-      ro.allow_invalid = allow_invalid;
-      auto res = run_matrix(wf, sets, ro);
-      return res.ok ? 0 : res.failed ? kFailed : kInvalid;
-    }
-    if (!variant.empty()) {  // one variant: the workflow with its values, outputs in out/<name>/<variant>/
+    if (!variants.empty() && variant.empty() && run->parsed()) {
+      // the whole study: run_matrix below
+    } else if (!variant.empty()) {  // one variant: the workflow with its values, outputs in out/<name>/<variant>/
       const Variant& v = find_variant(variants, variant, wf);
       auto o = sets;
       o.insert(o.end(), v.overrides.begin(), v.overrides.end());
@@ -294,6 +285,21 @@ int cli_main(int argc, char** argv) {
     RemoteCacheOptions remote_opts;  // checked before any folder is made or stage run
     if (run->parsed() || check->parsed() || golden->parsed())
       remote_opts = resolve_remote_cache(remote_url, remote_netrc, remote_connect_timeout, remote_timeout);
+    auto run_options = [&] {
+      RunOptions ro;
+      ro.remote = remote_opts;
+      ro.cache_dir = cache_dir;
+      ro.out_dir = out_dir;
+      ro.jobs = jobs;
+      ro.threads = threads;
+      ro.verbose = verbose;
+      ro.allow_invalid = allow_invalid && run->parsed();
+      return ro;
+    };
+    if (!variants.empty() && variant.empty() && run->parsed()) {  // the whole study
+      auto res = run_matrix(wf, sets, run_options());
+      return res.ok ? 0 : res.failed ? kFailed : kInvalid;
+    }
     if (dag->parsed()) {
       if (dot) {
         std::cout << "digraph \"" << wf.name << "\" {\n  rankdir=LR;\n";
@@ -375,15 +381,7 @@ int cli_main(int argc, char** argv) {
         return kBadInput;
       }
     }
-    RunOptions ro;
-    ro.remote = remote_opts;
-    ro.cache_dir = cache_dir;
-    ro.out_dir = out_dir;
-    ro.jobs = jobs;
-    ro.threads = threads;
-    ro.verbose = verbose;
-    ro.allow_invalid = allow_invalid && run->parsed();
-    RunResult rr = run_workflow(wf, ro);
+    RunResult rr = run_workflow(wf, run_options());
     if (!rr.ok) return rr.failed ? kFailed : kInvalid;
     if (run->parsed()) return 0;
     json summary = golden_summary(wf, rr);

@@ -79,7 +79,7 @@ TEST_CASE("matrix: six variants, named by their values, the shared stages run on
   CHECK(dag.out.find("matrix: 6 variants: " + vs[0].name) != std::string::npos);
 }
 
-TEST_CASE("matrix: distinct last components name variants short; bad matrices are exit 2 before anything runs") {
+TEST_CASE("matrix: distinct last components name variants short, and bad matrices are exit 2 before anything runs") {
   {
     WorkflowFixture f(std::string(kStudy).substr(0, std::string(kStudy).find("matrix:")) +
                           "matrix:\n  a.repeat: [1, 2]\n  c.suffix: [\"-p q\"]\n",
