@@ -1,6 +1,7 @@
 #include "engine/cli.hpp"
 
 #include "engine/command.hpp"
+#include "engine/export_snakemake.hpp"
 #include "engine/fsutil.hpp"
 #include "engine/golden.hpp"
 #include "engine/matrix.hpp"
@@ -132,7 +133,7 @@ int cli_main(int argc, char** argv) {
              "\n\nExit codes: 0 success; 1 a stage failed or `check` found differences; 2 bad input (workflow, "
              "arguments); 3 a mesh breaks the contract (invalid, degenerate, non-conforming or untagged elements, CAD faces "
              "not covered, volume not filled): outputs are written for inspection and report.json lists the problems.");
-  std::string workflow_file, stage, cache_dir, out_dir, max_size, variant;
+  std::string workflow_file, stage, cache_dir, out_dir, max_size, variant, only, target, snakefile_path = "Snakefile", exe;
   std::vector<std::string> sets;
   int jobs = 0, threads = 0;
   bool verbose = false, dot = false, update = false, verify = false, repair = false, json_out = false;
@@ -167,6 +168,17 @@ int cli_main(int argc, char** argv) {
   };
   auto* run = app.add_subcommand("run", "run the stale stages of a workflow, write outputs and report.json");
   add_common(run, true);
+  run->add_option("--only", only, "run this stage (and what it needs, if stale) and nothing else; no outputs (a Snakemake rule's command)");
+  auto* exp = app.add_subcommand("export", "write the workflow (each matrix variant) as a Snakefile: export snakemake WORKFLOW");
+  exp->add_option("target", target, "what to export: snakemake")->required()->check(CLI::IsMember({"snakemake"}));
+  exp->add_option("workflow", workflow_file, "workflow YAML file")->required();
+  exp->add_option("--set", sets, "override a parameter in every rule: STAGE.PARAM=VALUE (repeatable)");
+  exp->add_option("--cache", cache_dir, "the cache the rules share (default: $MESHFLOW_CACHE, else .meshflow/ beside the workflow)");
+  exp->add_option("--out", out_dir, "output folder (default: out/<workflow name>/, a folder per variant in it)");
+  exp->add_option("-o,--output", snakefile_path, "the Snakefile to write (default: Snakefile; - for stdout)");
+  exp->add_option("--threads", threads, "threads per stage rule (default 2)");
+  exp->add_option("--exe", exe, "the meshflow command the rules run (default: this executable)");
+  exp->add_option("--remote-cache", remote_url, "a remote cache every rule uses (see run --remote-cache)");
   auto* status = app.add_subcommand("status", "show which stages are fresh, stale (and why) or never run");
   add_common(status, false);
   auto* explain = app.add_subcommand("explain", "why a stage is stale: the field-by-field diff of its key");
@@ -261,8 +273,8 @@ int cli_main(int argc, char** argv) {
   try {
     wf = load_workflow(workflow_file, sets);
     variants = matrix_variants(wf);
-    if (!variants.empty() && variant.empty() && run->parsed()) {
-      // the whole study: run_matrix below
+    if (!variants.empty() && variant.empty() && ((run->parsed() && only.empty()) || exp->parsed())) {
+      // the whole study: run_matrix or the export below
     } else if (!variant.empty()) {  // one variant: the workflow with its values, outputs in out/<name>/<variant>/
       const Variant& v = find_variant(variants, variant, wf);
       auto o = sets;
@@ -296,6 +308,24 @@ int cli_main(int argc, char** argv) {
       ro.allow_invalid = allow_invalid && run->parsed();
       return ro;
     };
+    if (exp->parsed()) {
+      SnakemakeExport so;
+      so.exe = exe.empty() ? fs::read_symlink("/proc/self/exe").string() : exe;
+      so.cache_dir = fs::absolute(resolve_cache_dir(wf, cache_dir));
+      so.out_dir = fs::absolute(out_dir.empty() ? fs::current_path() / "out" / wf.name : fs::path(out_dir));
+      so.threads = threads > 0 ? threads : 2;
+      so.sets = sets;
+      if (!remote_url.empty()) so.extra = {"--remote-cache", remote_url};
+      const std::string text = snakefile(wf, so);
+      if (snakefile_path == "-") {
+        std::cout << text;
+      } else {
+        atomic_write(snakefile_path, text);
+        std::cout << "wrote " << snakefile_path << ": run it with `snakemake -s " << snakefile_path
+                  << " --cores N` (or --slurm / --cluster on a cluster whose nodes share " << so.cache_dir.string() << ")\n";
+      }
+      return 0;
+    }
     if (!variants.empty() && variant.empty() && run->parsed()) {  // the whole study
       auto res = run_matrix(wf, sets, run_options());
       return res.ok ? 0 : res.failed ? kFailed : kInvalid;
@@ -381,7 +411,13 @@ int cli_main(int argc, char** argv) {
         return kBadInput;
       }
     }
-    RunResult rr = run_workflow(wf, run_options());
+    RunOptions ro = run_options();
+    if (!only.empty()) {  // one stage (and what it needs), no outputs: a Snakemake rule
+      wf = wf.upstream_of(only);
+      ro.materialise = false;
+      ro.deliver = false;
+    }
+    RunResult rr = run_workflow(wf, ro);
     if (!rr.ok) return rr.failed ? kFailed : kInvalid;
     if (run->parsed()) return 0;
     json summary = golden_summary(wf, rr);

@@ -468,7 +468,8 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
   bool any_failed = false, any_invalid = false;
   // A stage's result is delivered when an output is materialised from it or no stage needs it:
   // a contract problem there fails the run even when it is repairable by a later stage.
-  std::vector<bool> delivered(wf.stages.size(), true);
+  // (With deliver = false, `run --only`, nothing is: the run that writes the outputs judges.)
+  std::vector<bool> delivered(wf.stages.size(), opt.deliver);
   for (auto& s : wf.stages)
     for (auto& n : s.needs)
       for (size_t i = 0; i < wf.stages.size(); ++i)

@@ -29,6 +29,10 @@ struct RunOptions {
   // Accept results that break their contract (stats.problems): downstream stages run on them
   // and the run counts as ok, marked "invalid_accepted". For debugging; never the default.
   bool allow_invalid = false;
+  // Whether the last stages' results are delivered (their non-blocking contract problems fail
+  // the run). False for `run --only STAGE`: a Snakemake rule computes one stage for later ones,
+  // and the rule that writes the outputs judges what is delivered.
+  bool deliver = true;
   RemoteCacheOptions remote;        // url empty: no remote cache (see resolve_remote_cache)
   std::ostream* out = nullptr;      // progress and summary (default std::cout)
   std::ostream* err = nullptr;      // error paragraphs (default std::cerr)

@@ -160,6 +160,19 @@ std::vector<std::string> Workflow::descendants(const std::string& stage) const {
   return out;
 }
 
+Workflow Workflow::upstream_of(const std::string& stage) const {
+  if (!find(stage)) throw WorkflowError(file.string() + ": --only " + stage + ": the workflow has no stage '" + stage + "'.");
+  std::set<std::string> keep{stage};
+  for (auto it = stages.rbegin(); it != stages.rend(); ++it)  // reverse topological order: one pass
+    if (keep.count(it->name)) keep.insert(it->needs.begin(), it->needs.end());
+  Workflow w = *this;
+  w.stages.clear();
+  for (auto& s : stages)
+    if (keep.count(s.name)) w.stages.push_back(s);
+  w.outputs.clear();
+  return w;
+}
+
 namespace {
 std::string too_large(const fs::path& file, std::uintmax_t bytes) {
   return file.string() + ": the workflow file is " + std::to_string(bytes) + " bytes; at most " +

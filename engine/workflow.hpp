@@ -74,6 +74,10 @@ struct Workflow {
   const StageDecl* find(const std::string& stage) const;
   // The stage and everything downstream of it.
   std::vector<std::string> descendants(const std::string& stage) const;
+  // The workflow reduced to `stage` and what it needs, directly or not, with no outputs
+  // (`meshflow run --only STAGE`: one stage of a Snakemake rule). Throws WorkflowError for an
+  // unknown stage.
+  Workflow upstream_of(const std::string& stage) const;
 };
 
 // Loads and validates the workflow; `overrides` are "STAGE.PARAM=VALUE" (--set), the value
