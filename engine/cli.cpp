@@ -1,5 +1,6 @@
 #include "engine/cli.hpp"
 
+#include "engine/artifact_type.hpp"
 #include "engine/command.hpp"
 #include "engine/export_snakemake.hpp"
 #include "engine/fsutil.hpp"
@@ -45,10 +46,41 @@ std::optional<std::uint64_t> parse_size(const std::string& s) {
   return std::uint64_t(v * m);
 }
 
+json produces_json(const StageKind& k) {
+  json a = json::array();
+  for (auto& p : k.produces) a.push_back({{"name", p.name}, {"type", p.type}});
+  return a;
+}
+
+std::string joined(const std::vector<std::string>& v) {
+  std::string s;
+  for (auto& x : v) s += (s.empty() ? "" : ", ") + x;
+  return s;
+}
+
+// What a kind reads and writes, as `meshflow kinds KIND` prints it.
+void print_flow(const StageKind& k) {
+  if (k.produces.empty()) return;  // a test kind: undeclared
+  std::cout << "  needs:    " << (k.needs.empty() ? "nothing (a source stage: no `needs`)" : joined(k.needs) + " (from the stages in its `needs`)")
+            << "\n";
+  if (!k.reads.empty()) std::cout << "  reads:    " << joined(k.reads) << " when a stage in its `needs` produces it\n";
+  for (auto& p : k.produces) {
+    std::cout << "  produces: " << p.name << " (type " << p.type;
+    if (const ArtifactType* t = find_artifact_type(p.type); t && !t->formats.empty()) {
+      std::vector<std::string> f;
+      for (auto& [n, x] : t->formats) f.push_back(n);
+      std::cout << "; output formats " << joined(f);
+    }
+    std::cout << ")\n";
+  }
+}
+
 void print_kind(const StageKind& k) {
   std::cout << k.kind << " (version " << k.version << "): " << k.summary << "\n";
+  print_flow(k);
   const json* s = kind_schema(k);
   if (!s || !s->contains("properties")) return;
+  std::cout << "  parameters:\n";
   for (auto& [name, p] : (*s)["properties"].items()) {
     std::cout << "  " << name;
     if (p.contains("type")) std::cout << " (" << (p["type"].is_string() ? p["type"].get<std::string>() : p["type"].dump()) << ")";
@@ -61,11 +93,18 @@ void print_kind(const StageKind& k) {
   }
 }
 
-// Every registered kind has a schema that only uses supported keywords; every schema file
-// belongs to a kind. Returns problems (empty = consistent).
+// Every registered kind has a schema that only uses supported keywords and declares what it
+// produces, of registered types; every schema file belongs to a kind. Returns problems (empty =
+// consistent).
 std::vector<std::string> self_check() {
   std::vector<std::string> problems;
   for (auto* k : all_stage_kinds()) {
+    if (k->schema.empty() && k->produces.empty())
+      problems.push_back("kind '" + k->kind + "' declares no `produces` (the artifacts it writes)");
+    for (auto& t : k->needs) if (!find_artifact_type(t)) problems.push_back("kind '" + k->kind + "' needs unregistered type '" + t + "'");
+    for (auto& t : k->reads) if (!find_artifact_type(t)) problems.push_back("kind '" + k->kind + "' reads unregistered type '" + t + "'");
+    for (auto& a : k->produces)
+      if (!find_artifact_type(a.type)) problems.push_back("kind '" + k->kind + "' produces unregistered type '" + a.type + "'");
     const json* s = kind_schema(*k);
     if (!s) {
       problems.push_back("kind '" + k->kind + "' has no schemas/" + k->kind + ".schema.json");
@@ -232,7 +271,9 @@ int cli_main(int argc, char** argv) {
     if (json_out) {
       json j = json::object();
       for (auto* k : all_stage_kinds())
-        j["kinds"][k->kind] = {{"version", k->version}, {"summary", k->summary}, {"schema", kind_schema(*k) ? *kind_schema(*k) : json()}};
+        j["kinds"][k->kind] = {{"version", k->version},     {"summary", k->summary},   {"needs", k->needs},
+                               {"reads", k->reads},         {"produces", produces_json(*k)},
+                               {"schema", kind_schema(*k) ? *kind_schema(*k) : json()}};
       for (auto* t : all_artifact_types()) {
         json f = json::array();
         for (auto& [n, x] : t->formats) f.push_back(n);

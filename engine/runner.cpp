@@ -115,6 +115,10 @@ class ChildContext final : public StageContext {
       throw std::logic_error("stage kind '" + decl_.kind + "' declares an output of unregistered artifact type '" + type + "'");
     for (auto& o : outputs_)
       if (o.first == name) throw std::logic_error("stage kind '" + decl_.kind + "' declares output '" + name + "' twice");
+    if (const StageKind* k = find_stage_kind(decl_.kind); k && !k->produces.empty() &&
+        std::none_of(k->produces.begin(), k->produces.end(), [&](auto& a) { return a.name == name && a.type == type; }))
+      throw std::logic_error("stage kind '" + decl_.kind + "' writes artifact '" + name + "' of type '" + type +
+                             "', which its `produces` does not declare");
     outputs_.push_back({name, type});
     return scratch_ / ("out." + name);
   }

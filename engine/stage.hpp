@@ -17,6 +17,7 @@
 //       .kind = "heal", .version = 1,
 //       .summary = "sew, fix and close the CAD into a watertight fluid solid",
 //       .libraries = {"OCCT " OCC_VERSION_COMPLETE},
+//       .needs = {"shape"}, .produces = {{"shape", "shape"}},
 //       .run = [](meshflow::StageContext& ctx) { ... }});
 //
 // The kind's parameters are described by schemas/<kind>.schema.json (embedded at build
@@ -96,11 +97,26 @@ class StageContext {
   virtual int threads() const = 0;
 };
 
+// An artifact a kind writes: its name (ctx.output's first argument) and registered type.
+struct ArtifactDecl {
+  std::string name, type;
+};
+
 struct StageKind {
   std::string kind;                    // e.g. "heal"
   int version = 1;                     // bump when the output for the same key changes
   std::string summary;                 // one line for `meshflow kinds` and README
   std::vector<std::string> libraries;  // "name version" of libraries whose version is in the key
+  // What the kind reads and writes, so that a workflow whose `needs` cannot supply a stage is
+  // refused at load (exit 2) before anything runs, and `meshflow kinds KIND` can say it:
+  //   needs     artifact types it must find among its inputs (ctx.input)
+  //   reads     types it uses when a stage in its `needs` produces one (ctx.inputs_of)
+  //   produces  what it writes (ctx.output), in that order; the first is an output's default
+  // Every product kind declares `produces` (`meshflow kinds --check`), and the runner refuses an
+  // undeclared ctx.output. Test kinds may leave all three empty: nothing is checked for them.
+  std::vector<std::string> needs;
+  std::vector<std::string> reads;
+  std::vector<ArtifactDecl> produces;
   std::function<void(StageContext&)> run;
   // Inline JSON schema of the parameters. Empty (the rule for every product kind): the
   // schema is schemas/<kind>.schema.json. Tests define throwaway kinds with inline schemas.

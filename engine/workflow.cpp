@@ -1,5 +1,6 @@
 #include "engine/workflow.hpp"
 
+#include "engine/artifact_type.hpp"
 #include "engine/registry.hpp"
 #include "engine/schema.hpp"
 
@@ -10,6 +11,7 @@
 #include <fstream>
 #include <functional>
 #include <map>
+#include <optional>
 #include <regex>
 #include <set>
 #include <sstream>
@@ -172,6 +174,91 @@ Workflow Workflow::upstream_of(const std::string& stage) const {
   w.outputs.clear();
   return w;
 }
+
+namespace {
+// The artifact types a stage's `needs` supply; nullopt when one of them is a kind that declares
+// nothing (a test kind): then nothing can be said.
+std::optional<std::set<std::string>> supplied_types(const StageDecl& d, const std::vector<StageDecl>& decls,
+                                                    const std::map<std::string, size_t>& index) {
+  std::set<std::string> types;
+  for (auto& n : d.needs) {
+    const StageKind* k = find_stage_kind(decls[index.at(n)].kind);
+    if (k->produces.empty()) return std::nullopt;
+    for (auto& a : k->produces) types.insert(a.type);
+  }
+  return types;
+}
+
+// The kinds that produce `type`, for a message ("sweep, split, ...").
+std::string producers_of(const std::string& type) {
+  std::string s;
+  for (auto* k : all_stage_kinds())
+    for (auto& a : k->produces)
+      if (a.type == type && k->schema.empty()) {
+        s += (s.empty() ? "" : ", ") + k->kind;
+        break;
+      }
+  return s.empty() ? "none" : s;
+}
+
+// A stage whose `needs` cannot supply an artifact type its kind reads is refused at load:
+// the run would otherwise fail when that stage starts, after everything before it ran.
+void check_inputs_supplied(const Source& src, const StageDecl& d, const std::vector<StageDecl>& decls,
+                           const std::map<std::string, size_t>& index) {
+  const StageKind* kind = find_stage_kind(d.kind);
+  auto types = supplied_types(d, decls, index);
+  if (!types) return;
+  for (auto& t : kind->needs) {
+    if (types->count(t)) continue;
+    std::string have;
+    for (auto& n : d.needs) {
+      have += (have.empty() ? "" : "; ") + n + " (" + decls[index.at(n)].kind + ") gives";
+      for (auto& a : find_stage_kind(decls[index.at(n)].kind)->produces) have += " " + a.type;
+    }
+    std::string needed;
+    for (auto& x : kind->needs) needed += (needed.empty() ? "" : ", ") + x;
+    src.fail("/stages/" + escape_token(d.name) + "/needs",
+             "stage '" + d.name + "' (kind " + d.kind + ") reads an artifact of type '" + t + "', which none of its `needs` " +
+                 (d.needs.empty() ? "supplies: it lists none" : "produces (" + have + ")") + ". A " + d.kind +
+                 " stage needs " + needed + ". Add a stage that produces " + t + " (kinds: " + producers_of(t) +
+                 ") to its `needs`; `meshflow kinds " + d.kind + "` says what it needs.");
+  }
+}
+
+// An output names an artifact its stage's kind writes, in formats of that artifact's type.
+void check_output_formats(const Source& src, const OutputDecl& od, const StageKind& kind) {
+  if (kind.produces.empty()) return;
+  const std::string at = "/outputs/" + escape_token(od.name);
+  const ArtifactDecl* art = &kind.produces.front();
+  if (!od.artifact.empty()) {
+    art = nullptr;
+    std::string names;
+    for (auto& a : kind.produces) {
+      if (a.name == od.artifact) art = &a;
+      names += (names.empty() ? "" : ", ") + a.name;
+    }
+    if (!art)
+      src.fail(at + "/artifact", "output '" + od.name + "': stage '" + od.from + "' (kind " + kind.kind +
+                                     ") writes no artifact '" + od.artifact + "' (it writes: " + names + ").");
+  }
+  const ArtifactType* type = find_artifact_type(art->type);
+  if (!type) return;
+  for (size_t i = 0; i < od.formats.size(); ++i) {
+    if (type->formats.count(od.formats[i])) continue;
+    std::string known;
+    std::vector<std::string> names;
+    for (auto& [n, f] : type->formats) {
+      known += (known.empty() ? "" : ", ") + n;
+      names.push_back(n);
+    }
+    std::string near = nearest_name(od.formats[i], names);
+    src.fail(at + "/formats/" + std::to_string(i),
+             "output '" + od.name + "': a " + art->type + " has no format '" + od.formats[i] + "'" +
+                 (near.empty() ? "" : "; did you mean '" + near + "'?") + " (formats: " + (known.empty() ? "none" : known) +
+                 "; `meshflow kinds` describes them).");
+  }
+}
+}  // namespace
 
 namespace {
 std::string too_large(const fs::path& file, std::uintmax_t bytes) {
@@ -417,6 +504,8 @@ Workflow load_workflow_text(const std::string& text, const fs::path& file, const
   for (size_t i = 0; i < decls.size(); ++i)
     if (color[i] == 0) dfs(i);
 
+  for (auto& d : decls) check_inputs_supplied(src, d, decls, index);
+
   // Kahn's algorithm, ties broken by file order: a deterministic topological order.
   std::vector<int> indeg(decls.size(), 0);
   for (auto& d : decls) indeg[index[d.name]] = int(d.needs.size());
@@ -440,8 +529,7 @@ Workflow load_workflow_text(const std::string& text, const fs::path& file, const
       if (!wf.find(od.from))
         src.fail("/outputs/" + escape_token(oname) + "/from",
                  "output '" + oname + "' comes from stage '" + od.from + "', which is not a stage of this workflow.");
-      const StageKind* k = find_stage_kind(wf.find(od.from)->kind);
-      (void)k;
+      check_output_formats(src, od, *find_stage_kind(wf.find(od.from)->kind));
       wf.outputs.push_back(std::move(od));
     }
 

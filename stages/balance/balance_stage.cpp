@@ -509,6 +509,8 @@ StageRegistrar reg({.kind = "balance",
                     .version = 2,
                     .summary = "interval assignment (integer program, lp_solve): divisions per block edge from the turn-angle sizing, equal/periodic/parity constraints",
                     .libraries = {lp_solve_version()},
+                    .needs = {"shape", "shell"},
+                    .produces = {{"divisions", "divisions"}},
                     .run = run});
 
 }  // namespace

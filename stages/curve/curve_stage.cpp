@@ -42,6 +42,8 @@ void run(StageContext& ctx) {
 StageRegistrar reg({.kind = "curve",
                     .version = 2,
                     .summary = "order-P mesh on the CAD, bottom-up: CAD curves, CAD surfaces in (u,v), the boundary layer following the curved wall, blended interiors",
+                    .needs = {"mesh", "shape"},
+                    .produces = {{"mesh", "mesh"}},
                     .run = run});
 
 }  // namespace

@@ -667,6 +667,7 @@ StageRegistrar reg({.kind = "blade_sector",
                     .version = 1,
                     .summary = "blade lofted through file sections (Rotor 67, CSV, Z/R/theta) on a hub in a 2pi/N periodic sector",
                     .libraries = {"OCCT " OCC_VERSION_COMPLETE},
+                    .produces = {{"shape", "shape"}},
                     .run = run});
 }  // namespace
 }  // namespace meshflow::geometry

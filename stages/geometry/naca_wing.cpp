@@ -157,6 +157,7 @@ StageRegistrar reg({.kind = "naca_wing",
                     .version = 2,  // 2: a sharp trailing edge is an edge between lower and upper faces
                     .summary = "NACA 4-digit wing with round tip, root on the wall of a box far field",
                     .libraries = {"OCCT " OCC_VERSION_COMPLETE},
+                    .produces = {{"shape", "shape"}},
                     .run = run});
 }  // namespace
 }  // namespace meshflow::geometry

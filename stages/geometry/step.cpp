@@ -71,6 +71,7 @@ StageRegistrar reg({.kind = "step",
                     .version = 1,
                     .summary = "import a STEP/IGES/BREP file as a shape, keeping its units",
                     .libraries = {"OCCT " OCC_VERSION_COMPLETE},
+                    .produces = {{"shape", "shape"}},
                     .run = run});
 }  // namespace
 }  // namespace meshflow::geometry

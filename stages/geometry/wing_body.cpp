@@ -436,6 +436,7 @@ StageRegistrar reg({.kind = "wing_body",
                     .version = 1,
                     .summary = "half wing-body (body of revolution + swept tapered NACA wing) in a box far field",
                     .libraries = {"OCCT " OCC_VERSION_COMPLETE},
+                    .produces = {{"shape", "shape"}},
                     .run = run});
 }  // namespace
 }  // namespace meshflow::geometry

@@ -656,6 +656,8 @@ StageRegistrar reg({.kind = "heal",
                     .version = 2,
                     .summary = "sew, fix and close the CAD into a watertight fluid solid; refuse what cannot be repaired",
                     .libraries = {"OCCT " OCC_VERSION_COMPLETE},
+                    .needs = {"shape"},
+                    .produces = {{"shape", "shape"}},
                     .run = run});
 }  // namespace
 }  // namespace meshflow::heal

@@ -407,6 +407,8 @@ StageRegistrar reg({.kind = "medial",
                     .version = 1,
                     .summary = "medial object of the fluid solid (CGAL Delaunay poles): medial points with radius, wall LFS, halos",
                     .libraries = {"CGAL " CGAL_VERSION_STR},
+                    .needs = {"shape"},
+                    .produces = {{"medial", "medial"}},
                     .run = run});
 
 }  // namespace

@@ -122,6 +122,8 @@ StageRegistrar reg({.kind = "optimise",
                     .version = 4,
                     .summary = "surface node optimisation: spring energy of high-order edges/faces in CAD parameter space, bounded L-BFGS-B, validity kept",
                     .libraries = {"LBFGSpp 0.1.0"},
+                    .needs = {"mesh", "shape"},
+                    .produces = {{"mesh", "mesh"}},
                     .run = run});
 
 }  // namespace

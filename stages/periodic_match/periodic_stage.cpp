@@ -99,6 +99,9 @@ StageRegistrar reg({.kind = "periodic_match",
                     .version = 1,
                     .summary = "find the rotation/translation mapping periodic_lo onto periodic_hi, pair their faces, edges and vertices, check equal divisions",
                     .libraries = {},
+                    .needs = {"shape"},
+                    .reads = {"divisions"},
+                    .produces = {{"periodic", "periodic"}},
                     .run = run});
 
 }  // namespace

@@ -2126,6 +2126,8 @@ StageRegistrar reg({.kind = "shell",
                     .version = 5,
                     .summary = "near-field shell bounded by the medial object: thickness/direction fields, prism and C-type hex junction blocks",
                     .libraries = {"CGAL " CGAL_VERSION_STR},
+                    .needs = {"shape", "medial"},
+                    .produces = {{"shell", "shell"}},
                     .run = run});
 
 }  // namespace

@@ -69,6 +69,8 @@ void run(StageContext& ctx) {
 StageRegistrar reg({.kind = "split",
                     .version = 1,
                     .summary = "isoparametric boundary-layer splitting of near-field prisms/hexes into `layers` sub-elements with geometric growth",
+                    .needs = {"mesh"},
+                    .produces = {{"mesh", "mesh"}},
                     .run = run});
 
 }  // namespace

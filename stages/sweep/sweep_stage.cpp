@@ -76,6 +76,9 @@ StageRegistrar reg({.kind = "sweep",
                     .version = 8,
                     .summary = "surface meshes of all faces (CDT in the parameter plane) and the one-layer prism/hex near field",
                     .libraries = {},
+                    .needs = {"shape", "shell", "divisions"},
+                    .reads = {"periodic"},
+                    .produces = {{"mesh", "mesh"}},
                     .run = run});
 
 }  // namespace

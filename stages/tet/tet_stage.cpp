@@ -55,6 +55,8 @@ StageRegistrar reg({.kind = "tet",
                     .version = 1,
                     .summary = "fill the far field with tetrahedra (TetGen), conforming to the shell; pyramids on quads",
                     .libraries = {std::string("TetGen ") + detail::tetgen_version()},
+                    .needs = {"mesh"},
+                    .produces = {{"mesh", "mesh"}},
                     .run = run});
 
 }  // namespace

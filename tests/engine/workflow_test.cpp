@@ -147,3 +147,48 @@ TEST_CASE("bad input: every kind gives file, line and what to do") {
     CHECK(e.find("w.yaml:6:") != std::string::npos);
   }
 }
+
+// What a stage's kind reads must come from its `needs`, and an output's formats must be formats
+// of its artifact's type: both are refused at load (exit 2), before any stage runs.
+TEST_CASE("a needs list that cannot supply a kind's inputs, or an unknown format, is exit 2 at load") {
+  const std::string head = "meshflow: 1\nname: flow\nstages:\n  geometry: {kind: naca_wing}\n  heal: {kind: heal, needs: [geometry]}\n";
+  // tet reads a mesh; heal gives a shape
+  std::string e = load_error(head + "  tet: {kind: tet, needs: [heal]}\n");
+  CHECK(e.find("w.yaml:6:") != std::string::npos);
+  CHECK(e.find("stage 'tet' (kind tet) reads an artifact of type 'mesh'") != std::string::npos);
+  CHECK(e.find("heal (heal) gives shape") != std::string::npos);
+  CHECK(e.find("kinds: curve, optimise, split, sweep, tet") != std::string::npos);
+  // a kind that needs two types, given one
+  e = load_error(head + "  medial: {kind: medial, needs: [heal]}\n  shell: {kind: shell, needs: [medial]}\n");
+  CHECK(e.find("stage 'shell' (kind shell) reads an artifact of type 'shape'") != std::string::npos);
+  // no needs at all
+  e = load_error(head + "  medial: {kind: medial}\n");
+  CHECK(e.find("it lists none") != std::string::npos);
+  // an optional input is not required (periodic_match reads divisions when given)
+  CHECK(load_error(head + "  pm: {kind: periodic_match, needs: [heal]}\n") == "");
+  // formats: unknown, with a suggestion; an artifact the kind does not write
+  e = load_error(head + "outputs:\n  shape: {from: heal, formats: [brep, stp]}\n");
+  CHECK(e.find("w.yaml:7:") != std::string::npos);
+  CHECK(e.find("output 'shape': a shape has no format 'stp'; did you mean 'step'?") != std::string::npos);
+  e = load_error(head + "outputs:\n  shape: {from: heal, artifact: mesh}\n");
+  CHECK(e.find("writes no artifact 'mesh' (it writes: shape)") != std::string::npos);
+  CHECK(load_error(head + "outputs:\n  shape: {from: heal, formats: [brep, step]}\n") == "");
+  // the CLI: exit 2, nothing run, nothing cached
+  WorkflowFixture f(head + "  tet: {kind: tet, needs: [heal]}\n", "flow");
+  auto r = f.run();
+  CHECK(r.code == 2);
+  CHECK(action_count(f.cache) == 0);
+  CHECK(f.run({}, "dag").code == 2);
+}
+
+TEST_CASE("meshflow kinds KIND says what the kind needs, reads and produces") {
+  auto r = cli({"kinds", "shell"});
+  REQUIRE(r.code == 0);
+  CHECK(r.out.find("needs:    shape, medial") != std::string::npos);
+  CHECK(r.out.find("produces: shell (type shell") != std::string::npos);
+  r = cli({"kinds", "sweep"});
+  CHECK(r.out.find("reads:    periodic") != std::string::npos);
+  CHECK(r.out.find("produces: mesh (type mesh; output formats cgns, msh,") != std::string::npos);
+  CHECK(cli({"kinds", "naca_wing"}).out.find("needs:    nothing") != std::string::npos);
+  CHECK(cli({"kinds", "--check"}).code == 0);
+}
