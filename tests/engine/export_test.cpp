@@ -14,19 +14,6 @@ using namespace mftest;
 using nlohmann::json;
 
 namespace {
-// as in matrix_test.cpp: a is shared by the 6 variants, each b by 3
-const char* kStudy = R"(meshflow: 1
-name: study
-stages:
-  a: {kind: t_source, with: {text: "ab", repeat: 2}}
-  b: {kind: t_cat, needs: [a], with: {suffix: "-b"}}
-  c: {kind: t_cat, needs: [b], with: {suffix: "-c"}}
-outputs:
-  final: {from: c}
-matrix:
-  b.suffix: ["-x", "-y"]
-  c.suffix: ["-1", "-2", "-3"]
-)";
 
 int count(const std::string& text, const std::string& what) {
   int n = 0;

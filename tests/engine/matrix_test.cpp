@@ -12,23 +12,6 @@
 using namespace mftest;
 using nlohmann::json;
 
-namespace {
-// a -> b -> c; the matrix varies b (2 values) and c (3 values): a is shared by all 6 variants,
-// each b by 3
-const char* kStudy = R"(meshflow: 1
-name: study
-stages:
-  a: {kind: t_source, with: {text: "ab", repeat: 2}}
-  b: {kind: t_cat, needs: [a], with: {suffix: "-b"}}
-  c: {kind: t_cat, needs: [b], with: {suffix: "-c"}}
-outputs:
-  final: {from: c}
-matrix:
-  b.suffix: ["-x", "-y"]
-  c.suffix: ["-1", "-2", "-3"]
-)";
-}  // namespace
-
 TEST_CASE("matrix: six variants, named by their values, the shared stages run once") {
   WorkflowFixture f(kStudy, "matrix");
   auto wf = meshflow::load_workflow(f.wf);

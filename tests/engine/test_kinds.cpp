@@ -53,6 +53,19 @@ std::vector<std::string> calls(const fs::path& file) {
   return v;
 }
 
+const char* const kStudy = R"(meshflow: 1
+name: study
+stages:
+  a: {kind: t_source, with: {text: "ab", repeat: 2}}
+  b: {kind: t_cat, needs: [a], with: {suffix: "-b"}}
+  c: {kind: t_cat, needs: [b], with: {suffix: "-c"}}
+outputs:
+  final: {from: c}
+matrix:
+  b.suffix: ["-x", "-y"]
+  c.suffix: ["-1", "-2", "-3"]
+)";
+
 int action_count(const fs::path& cache) {
   int n = 0;
   if (fs::exists(cache / "actions"))

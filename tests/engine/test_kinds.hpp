@@ -35,6 +35,9 @@ struct WorkflowFixture {
   nlohmann::json report() const;                         // out/report.json
   nlohmann::json stage(const std::string& name) const;  // that stage's entry of it (null if none)
 };
+// A study a -> b -> c whose matrix varies b (2 values) and c (3 values): a is shared by all 6
+// variants, each b by 3 (matrix and Snakemake export tests).
+extern const char* const kStudy;
 // Number of action entries in a cache.
 int action_count(const fs::path& cache);
 // Files left in the cache's tmp/.
