@@ -6,7 +6,7 @@ the x axis, hub to tip, each a closed loop from the leading edge along the sucti
 trailing edge and back along the pressure side. Default: 6 sections, r = 15 .. 30 cm, chord
 6 -> 7 cm, thickness 10% -> 5%, camber 6% -> 3%, stagger 25 -> 50 degrees, in cm.
 
-Layouts (see README "Mesh your own CAD", blade rows):
+Layouts (see docs/blade-rows.md):
   csv  x, y, z per point (x the machine axis)
   zrt  z, r, theta per point (z the machine axis, theta in degrees unless --radians)
 Variants: --sep {comma,semicolon,space,tab}, --no-header, --section-column (a leading column with

@@ -168,6 +168,108 @@ long common_vertex(const Geo& g, long e1, long e2, const std::string& path, cons
 
 }  // namespace
 
+// The sides (faces in 3D, edges in 2D) of the volume elements by their sorted vertex nodes, so
+// that a boundary composite's side is found in one lookup: a scan over every element per side
+// made reading the demo's mesh quadratic (70 s of 74 s in std::set inserts, perf).
+class SideIndex {
+ public:
+  struct Hit {
+    std::size_t block, element;
+    int side;
+  };
+  SideIndex(const Mesh& m, int dim) {
+    for (std::size_t bi = 0; bi < m.blocks.size(); ++bi) {
+      const ElementBlock& bb = m.blocks[bi];
+      if (dimension(bb.shape) != dim) continue;
+      const std::size_t sides = dim == 3 ? face_vertices(bb.shape).size() : edge_vertices(bb.shape).size();
+      for (std::size_t e = 0; e < bb.size(); ++e)
+        for (std::size_t sd = 0; sd < sides; ++sd)
+          index_.emplace(key(side_vertices(bb, e, int(sd), dim)), Hit{bi, e, int(sd)});  // the first one found is kept
+    }
+  }
+  const Hit* find(std::vector<std::uint32_t> vertices) const {
+    auto it = index_.find(key(std::move(vertices)));
+    return it == index_.end() ? nullptr : &it->second;
+  }
+
+ private:
+  using Key = std::array<std::uint32_t, 4>;
+  static std::vector<std::uint32_t> side_vertices(const ElementBlock& bb, std::size_t e, int sd, int dim) {
+    const std::uint32_t* nd = bb.element(e);
+    std::vector<std::uint32_t> v;
+    if (dim == 3)
+      for (int k : face_vertices(bb.shape)[std::size_t(sd)]) v.push_back(nd[k]);
+    else
+      v = {nd[edge_vertices(bb.shape)[std::size_t(sd)][0]], nd[edge_vertices(bb.shape)[std::size_t(sd)][1]]};
+    return v;
+  }
+  static Key key(std::vector<std::uint32_t> v) {  // sorted, without repeats (a set), padded
+    std::sort(v.begin(), v.end());
+    v.erase(std::unique(v.begin(), v.end()), v.end());
+    Key k;
+    k.fill(UINT32_MAX);
+    std::copy_n(v.begin(), std::min<std::size_t>(v.size(), 4), k.begin());
+    return k;
+  }
+  std::map<Key, Hit> index_;
+};
+
+// COMPOSITE: the domain's composites become the volume's physical groups; boundary composites of
+// faces (3D) or edges (2D) become boundary elements of order P, their nodes taken from the
+// element side with the same vertices.
+void read_composites(const Node* comp, const Geo& g, const std::map<long, std::uint32_t>& vnode, const std::set<long>& domain,
+                     int dim, int P, const std::string& path, Mesh& m) {
+  const SideIndex sides(m, dim);
+  for (auto& c : comp->kids) {
+    long cid = nektar::id_of(path, c.get());
+    std::string t = c->text;
+    size_t lb = t.find('['), rb = t.find(']');
+    if (lb == std::string::npos || rb == std::string::npos) fail(path, c.get(), "composite without [list]");
+    char kind = 0;
+    for (size_t q = 0; q < lb; ++q)
+      if (std::isalpha((unsigned char)t[q])) kind = t[q];
+    std::vector<long> ids;
+    std::istringstream ls(t.substr(lb + 1, rb - lb - 1));
+    std::string item;
+    while (std::getline(ls, item, ',')) {
+      auto dash = item.find('-');
+      if (dash == std::string::npos) ids.push_back(std::atol(item.c_str()));
+      else
+        for (long k = std::atol(item.substr(0, dash).c_str()); k <= std::atol(item.substr(dash + 1).c_str()); ++k) ids.push_back(k);
+    }
+    std::string name = c->attr.count("NAME") ? c->attr.at("NAME") : "C" + std::to_string(cid);
+    if (domain.count(cid)) {
+      m.add_physical(dim, (int)cid, name);
+      m.add_entity(dim, 1, {(int)cid});
+      continue;
+    }
+    const bool faces = kind == 'F';
+    if (!(faces && dim == 3) && !(kind == 'E' && dim == 2)) continue;
+    m.add_physical(dim - 1, (int)cid, name);
+    m.add_entity(dim - 1, (int)cid, {(int)cid});
+    for (long sid : ids) {
+      std::vector<std::uint32_t> want;
+      if (faces) {
+        if (!g.F.count(sid)) fail(path, c.get(), "composite refers to face " + std::to_string(sid) + " which is not defined");
+        for (long ed : g.F.at(sid))
+          for (long v : g.E.at(ed)) want.push_back(vnode.at(v));
+      } else {
+        if (!g.E.count(sid)) fail(path, c.get(), "composite refers to edge " + std::to_string(sid) + " which is not defined");
+        want = {vnode.at(g.E.at(sid)[0]), vnode.at(g.E.at(sid)[1])};
+      }
+      const SideIndex::Hit* hit = sides.find(want);
+      if (!hit) fail(path, c.get(), "composite side " + std::to_string(sid) + " is not a side of any element");
+      ElementBlock& b = m.block(faces ? (g.F.at(sid).size() == 4 ? Shape::Quad : Shape::Tri) : Shape::Line, P, dim - 1, (int)cid);
+      const ElementBlock& vb = m.blocks[hit->block];  // after m.block(): it may have grown m.blocks
+      const auto& side = dim == 3 ? face_nodes(vb.shape, P)[std::size_t(hit->side)] : edge_nodes(vb.shape, P)[std::size_t(hit->side)];
+      const std::uint32_t* nd = vb.element(hit->element);
+      std::vector<std::uint32_t> sn;
+      for (int ln : side) sn.push_back(nd[ln]);
+      b.add(sn.data());
+    }
+  }
+}
+
 Mesh read_nektar(const std::filesystem::path& fp) {
   const std::string path = fp.string();
   const std::string data = detail::slurp(fp);
@@ -680,79 +782,7 @@ Mesh read_nektar(const std::filesystem::path& fp) {
       }
     }
   }
-  if (const Node* comp = geo->child("COMPOSITE")) {
-    std::map<std::set<std::uint32_t>, std::pair<int, std::vector<std::uint32_t>>> side_nodes;  // unused placeholder
-    (void)side_nodes;
-    for (auto& c : comp->kids) {
-      long cid = nektar::id_of(path, c.get());
-      std::string t = c->text;
-      size_t lb = t.find('['), rb = t.find(']');
-      if (lb == std::string::npos || rb == std::string::npos) fail(path, c.get(), "composite without [list]");
-      char kind = 0;
-      for (size_t q = 0; q < lb; ++q)
-        if (std::isalpha((unsigned char)t[q])) kind = t[q];
-      std::vector<long> ids;
-      std::istringstream ls(t.substr(lb + 1, rb - lb - 1));
-      std::string item;
-      while (std::getline(ls, item, ',')) {
-        auto dash = item.find('-');
-        if (dash == std::string::npos) ids.push_back(std::atol(item.c_str()));
-        else
-          for (long k = std::atol(item.substr(0, dash).c_str()); k <= std::atol(item.substr(dash + 1).c_str()); ++k) ids.push_back(k);
-      }
-      std::string name = c->attr.count("NAME") ? c->attr.at("NAME") : "C" + std::to_string(cid);
-      if (domain.count(cid)) {
-        m.add_physical(dim, (int)cid, name);
-        m.add_entity(dim, 1, {(int)cid});
-        continue;
-      }
-      // boundary composite of edges (2D) or faces (3D): boundary elements of order P
-      const bool faces = kind == 'F';
-      if (!(faces && dim == 3) && !(kind == 'E' && dim == 2)) continue;
-      m.add_physical(dim - 1, (int)cid, name);
-      m.add_entity(dim - 1, (int)cid, {(int)cid});
-      for (long sid : ids) {
-        ElementBlock& b = m.block(faces ? (g.F.count(sid) && g.F.at(sid).size() == 4 ? Shape::Quad : Shape::Tri) : Shape::Line, P,
-                                  dim - 1, (int)cid);
-        // find an element using this side and extract the side's nodes from it
-        std::vector<long> sv;
-        if (faces) {
-          if (!g.F.count(sid)) fail(path, c.get(), "composite refers to face " + std::to_string(sid) + " which is not defined");
-          std::set<long> vs;
-          for (long ed : g.F.at(sid))
-            for (long v : g.E.at(ed)) vs.insert(v);
-          sv.assign(vs.begin(), vs.end());
-        } else {
-          if (!g.E.count(sid)) fail(path, c.get(), "composite refers to edge " + std::to_string(sid) + " which is not defined");
-          sv = {g.E.at(sid)[0], g.E.at(sid)[1]};
-        }
-        std::set<std::uint32_t> want;
-        for (long v : sv) want.insert(vnode.at(v));
-        bool found = false;
-        for (auto& bb : m.blocks) {
-          if (dimension(bb.shape) != dim || found) continue;
-          const auto& sides = dim == 3 ? face_nodes(bb.shape, P) : edge_nodes(bb.shape, P);
-          const auto& svs = dim == 3 ? face_vertices(bb.shape) : std::vector<std::vector<int>>{};
-          for (size_t e = 0; e < bb.size() && !found; ++e) {
-            const std::uint32_t* nd = bb.element(e);
-            for (size_t s = 0; s < sides.size() && !found; ++s) {
-              std::set<std::uint32_t> have;
-              if (dim == 3)
-                for (int v : svs[s]) have.insert(nd[v]);
-              else
-                have = {nd[edge_vertices(bb.shape)[s][0]], nd[edge_vertices(bb.shape)[s][1]]};
-              if (have != want) continue;
-              std::vector<std::uint32_t> sn;
-              for (int ln : sides[s]) sn.push_back(nd[ln]);
-              b.add(sn.data());
-              found = true;
-            }
-          }
-        }
-        if (!found) fail(path, c.get(), "composite side " + std::to_string(sid) + " is not a side of any element");
-      }
-    }
-  }
+  if (const Node* comp = geo->child("COMPOSITE")) read_composites(comp, g, vnode, domain, dim, P, path, m);
   try {
     m.check();
   } catch (const std::invalid_argument& e) {
