@@ -780,6 +780,13 @@ double aspect(Shape s, const double* X) {
   return std::sqrt(hi / lo);
 }
 
+// Subdivision limits of the Bezier proof. The subdomain budget bounds the cost of one element
+// (each subdomain is one det J interpolation or de Casteljau split); the depth only limits
+// refinement towards a point, where det J is small but positive: a near-degenerate corner (the
+// junction hexes where a sharp trailing edge meets a casing, scaled Jacobian 0.004) is decided
+// along one path of 8 subdomains per level, at depth 7 to 12 (at 6 they stayed undecided).
+constexpr int kMaxSubdivisionDepth = 12, kMaxSubdomains = 600;
+
 // Slow path: subdivide the reference domain until the Bezier bounds decide.
 void refine(const JacobianSpace& sp, const double* X, const double* normal, ElementQuality& q) {
   const LagrangeBasis& b = LagrangeBasis::get(sp.shape, sp.order);
@@ -789,7 +796,6 @@ void refine(const JacobianSpace& sp, const double* X, const double* normal, Elem
   const bool exact = exact_grad_supported(sp.shape);
   std::deque<std::pair<std::vector<Vec3>, int>> todo;
   for (auto& c : sp.children) todo.push_back({c, 1});
-  const int max_depth = 6, max_domains = 600;
   int visited = 0;
   Eigen::VectorXd v(np);
   std::vector<double> Jp;
@@ -797,7 +803,7 @@ void refine(const JacobianSpace& sp, const double* X, const double* normal, Elem
     auto [dom, depth] = std::move(todo.front());
     todo.pop_front();
     double lam[3] = {0, 0, 0}, Rc[9];
-    if (++visited > max_domains) {
+    if (++visited > kMaxSubdomains) {
       q.inconclusive = true;
       return;
     }
@@ -840,7 +846,7 @@ void refine(const JacobianSpace& sp, const double* X, const double* normal, Elem
     Eigen::VectorXd c(np);
     sp.to_bezier(v.data(), c.data());
     if (c.minCoeff() > guard) continue;
-    if (depth >= max_depth) {
+    if (depth >= kMaxSubdivisionDepth) {
       q.inconclusive = true;
       continue;
     }
@@ -1041,9 +1047,8 @@ void hex_det_bezier(int P, const double* X, Tensor& det, double& err) {
     }
   det_from_columns(P, D, DE, det, err);
 }
-// Proves validity of a hex by its det J coefficients, subdividing (de Casteljau) up to depth 6.
 // Decides det > 0 on the box from its tensor Bernstein coefficients `det` (rounding bound err),
-// subdividing (de Casteljau) up to depth 6 (hexes, pyramids in collapsed coordinates).
+// subdividing (de Casteljau) within the limits above (hexes, pyramids in collapsed coordinates).
 void tensor_bezier_validity(Tensor det, double err, ElementQuality& q) {
   std::deque<std::pair<Tensor, int>> todo;
   todo.push_back({std::move(det), 0});
@@ -1051,7 +1056,7 @@ void tensor_bezier_validity(Tensor det, double err, ElementQuality& q) {
   while (!todo.empty()) {
     auto [T, depth] = std::move(todo.front());
     todo.pop_front();
-    if (++visited > 600) {
+    if (++visited > kMaxSubdomains) {
       q.inconclusive = true;
       return;
     }
@@ -1065,7 +1070,7 @@ void tensor_bezier_validity(Tensor det, double err, ElementQuality& q) {
           }
     const double mn = *std::min_element(T.c.begin(), T.c.end());
     if (mn > err) continue;
-    if (depth >= 6) {
+    if (depth >= kMaxSubdivisionDepth) {
       q.inconclusive = true;
       continue;
     }

@@ -12,7 +12,8 @@
 // long double. All coefficients above a rigorous rounding bound prove validity (the polynomial
 // is a convex combination of them); a sampled value <= 0 proves invalidity; otherwise the domain
 // is subdivided (simplices into 4/8, boxes into 4/8, prisms into 8) and each part is checked
-// again (up to depth 6; still inconclusive then = valid, reported in "inconclusive"). This is
+// again (at most 600 sub-domains per element, to depth 12 along any path; still undecided then:
+// "inconclusive", which the mesh contract does not count as valid). This is
 // the method of Johnen, Remacle and Geuzaine (2013) that Gmsh uses.
 // Rounding bound, per element and per direction: amplification of the transform (its infinity
 // norm) x (the transform's own rounding + det J's formula + the rounding of J's columns). Column
