@@ -1514,6 +1514,22 @@ std::vector<std::vector<ElementQuality>> mesh_quality(const Mesh& m, int threads
   return res;
 }
 
+namespace {
+// How validity was established, in words a reader trusts: "proven for every element" only when it
+// was (an element the Bezier refinement could not decide is inconclusive: the contract refuses it).
+std::string validity_method_text(std::size_t total, std::size_t sampled, std::size_t inconclusive,
+                                 const std::string& sampled_shapes) {
+  if (!sampled && !inconclusive) return "bezier (proven for every element)";
+  const std::size_t proven = total - sampled - std::min(inconclusive, total - sampled);
+  std::string s = "bezier (proven) for " + std::to_string(proven) + " elements";
+  if (inconclusive)
+    s += "; inconclusive (neither proven valid nor shown invalid, the contract refuses them) for " +
+         std::to_string(inconclusive) + " elements";
+  if (sampled) s += "; sampling (not proven) for " + std::to_string(sampled) + " elements: " + sampled_shapes;
+  return s;
+}
+}  // namespace
+
 nlohmann::json mesh_stats(const Mesh& m, int threads) { return mesh_stats(m, mesh_quality(m, threads), build_topology(m)); }
 
 nlohmann::json mesh_stats(const Mesh& m, const std::vector<std::vector<ElementQuality>>& q, const Topology& topo) {
@@ -1600,10 +1616,7 @@ nlohmann::json mesh_stats(const Mesh& m, const std::vector<std::vector<ElementQu
       if (eq.sampled) ++sampled_by[shape_name(m.blocks[bi].shape)];
   std::string which;
   for (auto& [name, count] : sampled_by) which += (which.empty() ? "" : ", ") + std::to_string(count) + " " + name + "s";
-  j["validity_method"] =
-      sampled ? "bezier (proven) for " + std::to_string(total - sampled) + " elements; sampling (not proven) for " +
-                    std::to_string(sampled) + " elements: " + which
-              : std::string("bezier (proven for every element)");
+  j["validity_method"] = validity_method_text(total, sampled, inconclusive, which);
   j["sampled"] = sampled;
   sj_edges.back() = 1.0;
   ar_edges.back() = 1e300;

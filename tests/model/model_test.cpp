@@ -239,6 +239,36 @@ TEST_CASE("topology of two P=2 tets sharing a face, conformity") {
   CHECK(mesh_stats(m)["nonconforming_faces"] == 1);
 }
 
+TEST_CASE("an element whose det J has a minimum of 1e-10 inside is inconclusive, and the stats do not call it proven") {
+  // P=3 hex x = F(xi), y = eta, z = zeta with F'(xi) = (xi - 0.1234567)^2 + 1e-10: det J > 0
+  // everywhere (no sample is <= 0, so nothing shows it invalid), but its minimum 1e-10 lies on a
+  // plane through the element, far below what Bezier refinement within its limits can prove.
+  auto X = straight(Shape::Hex, 3);
+  const auto& r = reference_nodes(Shape::Hex, 3);
+  const double x0 = 0.1234567, eps = 1e-10;
+  for (size_t i = 0; i < r.size(); ++i) {
+    const double t = r[i][0] - x0;
+    X[3 * i] = t * t * t / 3 + eps * r[i][0];
+    X[3 * i + 1] = r[i][1];
+    X[3 * i + 2] = r[i][2];
+  }
+  const auto q = element_quality(Shape::Hex, 3, X.data());
+  CHECK(q.min_det > 0);
+  CHECK(q.inconclusive);
+  Mesh m;
+  m.add_physical(3, 1, "fluid");
+  m.add_entity(3, 1, {1});
+  std::vector<std::uint32_t> ids;
+  for (size_t i = 0; i < X.size(); i += 3) ids.push_back(m.add_node(X[i], X[i + 1], X[i + 2]));
+  m.block(Shape::Hex, 3, 3, 1).add(ids.data());
+  const auto st = mesh_stats(m, 1);
+  CHECK(st["inconclusive"] == 1);
+  const std::string method = st["validity_method"];
+  INFO(method);
+  CHECK(method.find("every element") == std::string::npos);
+  CHECK(method.find("inconclusive") != std::string::npos);
+}
+
 TEST_CASE("mesh check names bad node indices and non-finite coordinates") {
   Mesh m;
   m.add_node(0, 0, 0);
