@@ -3,7 +3,7 @@ BUILD ?= build
 JOBS ?= $(shell nproc)
 CMAKE_FLAGS ?=
 
-.PHONY: all deps build demo test bench corpus pictures test-asan fuzz clean
+.PHONY: all deps build demo test test-cluster bench corpus pictures test-asan fuzz clean
 
 all: build
 
@@ -21,6 +21,11 @@ demo: build
 
 test: build
 	cd $(BUILD) && ctest --output-on-failure -j $(JOBS) --timeout 900
+
+# Snakemake on a single-node Slurm that the test starts on 127.0.0.1 (tests/cluster/slurm_test.sh;
+# needs root and slurm-wlm, munge, snakemake from install-deps; skipped with the reason otherwise).
+test-cluster: build
+	cd $(BUILD) && ctest --output-on-failure -L cluster --timeout 1200
 
 bench: build
 	cmake --build $(BUILD) -j $(JOBS) --target benchmarks

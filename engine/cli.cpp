@@ -145,6 +145,15 @@ json editor_schema_json() {
   return s;
 }
 
+// Writes the exported Snakefile, making its folder first (`-o study/Snakefile` in a new folder).
+void write_snakefile(const fs::path& path, const std::string& text) {
+  const fs::path dir = path.parent_path();
+  std::error_code ec;
+  if (!dir.empty()) fs::create_directories(dir, ec);
+  if (ec) throw WorkflowError("cannot make the folder " + dir.string() + " for the Snakefile: " + ec.message());
+  atomic_write(path, text);
+}
+
 }  // namespace
 
 int cli_main(int argc, char** argv) {
@@ -361,7 +370,7 @@ int cli_main(int argc, char** argv) {
       if (snakefile_path == "-") {
         std::cout << text;
       } else {
-        atomic_write(snakefile_path, text);
+        write_snakefile(snakefile_path, text);
         std::cout << "wrote " << snakefile_path << ": run it with `snakemake -s " << snakefile_path
                   << " --cores N` (or --slurm / --cluster on a cluster whose nodes share " << so.cache_dir.string() << ")\n";
       }

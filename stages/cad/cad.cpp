@@ -34,6 +34,8 @@
 #include <Message_PrinterOStream.hxx>
 #include <APIHeaderSection_MakeHeader.hxx>
 #include <STEPControl_Writer.hxx>
+#include <StepBasic_Product.hxx>
+#include <Interface_InterfaceModel.hxx>
 #include <TCollection_HAsciiString.hxx>
 #include <StepData_StepModel.hxx>
 #include <Interface_Static.hxx>
@@ -233,6 +235,18 @@ std::string header_time(const char* format) {
 }
 }  // namespace
 
+namespace {
+// OCCT names each product "Open CASCADE STEP translator 7.6 N", N counting the shapes this process
+// has written: the same shape would give another file in a matrix run. One fixed name instead.
+void name_products(const Handle(Interface_InterfaceModel)& model) {
+  for (Standard_Integer i = 1; i <= model->NbEntities(); ++i)
+    if (Handle(StepBasic_Product) p = Handle(StepBasic_Product)::DownCast(model->Value(i)); !p.IsNull()) {
+      p->SetId(new TCollection_HAsciiString("meshflow"));
+      p->SetName(new TCollection_HAsciiString("meshflow"));
+    }
+}
+}  // namespace
+
 void Shape::export_step(const std::filesystem::path& file) const {
   occt::silence();
   const std::string& un = impl_->units;
@@ -247,6 +261,7 @@ void Shape::export_step(const std::filesystem::path& file) const {
   w.Model()->SetWriteLengthUnit(mm);
   if (w.Transfer(impl_->shape, STEPControl_AsIs) != IFSelect_RetDone)
     throw StageError("writing the STEP file '" + file.string() + "' failed");
+  name_products(w.Model());
   APIHeaderSection_MakeHeader header(w.Model());
   header.SetTimeStamp(new TCollection_HAsciiString(header_time("%Y-%m-%dT%H:%M:%S").c_str()));
   if (w.Write(file.c_str()) != IFSelect_RetDone) throw StageError("writing the STEP file '" + file.string() + "' failed");

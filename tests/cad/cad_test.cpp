@@ -187,6 +187,15 @@ TEST_CASE("shape artifact: type registered, summary, STEP export keeps units, co
   auto dir = meshflow::testing::scratch_dir("export");
   t->formats.at("step").write(path, dir / "w.step");
   t->formats.at("brep").write(path, dir / "w.brep");
+  {  // the same shape written again by this process: the same bytes (OCCT numbers its products per process)
+    t->formats.at("step").write(path, dir / "again.step");
+    auto bytes = [](const fs::path& p) {
+      std::ifstream in(p, std::ios::binary);
+      return std::string((std::istreambuf_iterator<char>(in)), {});
+    };
+    CHECK(bytes(dir / "w.step") == bytes(dir / "again.step"));
+    CHECK(bytes(dir / "w.step").find("PRODUCT('meshflow','meshflow'") != std::string::npos);
+  }
   TestContext back("step", {{"file", (dir / "w.step").string()}});
   back.run();
   CHECK(back.stats_["units"] == "m");

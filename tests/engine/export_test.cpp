@@ -60,6 +60,16 @@ TEST_CASE("export snakemake: a rule per distinct stage, commands that name the v
   auto again = cli({"export", "snakemake", f.wf.string(), "--cache", f.cache.string(), "-o", "-"});
   CHECK(count(again.out, "mem_mb=1024") == 0);
   CHECK(count(again.out, "mem_mb=") == 9);
+  // -o into a folder that does not exist yet: made; under a file: exit 2 naming the folder
+  const fs::path nested = f.dir / "new" / "deeper" / "Snakefile";
+  auto made = cli({"export", "snakemake", f.wf.string(), "--cache", f.cache.string(), "-o", nested.string()});
+  INFO(made.err);
+  CHECK(made.code == 0);
+  CHECK(read_text(nested) == again.out);
+  write_text(f.dir / "plain", "a file");
+  auto under_file = cli({"export", "snakemake", f.wf.string(), "-o", (f.dir / "plain" / "Snakefile").string()});
+  CHECK(under_file.code == 2);
+  CHECK(under_file.err.find("cannot make the folder " + (f.dir / "plain").string()) != std::string::npos);
   // bad: an unknown target, a workflow that does not load
   CHECK(cli({"export", "make", f.wf.string()}).code == 2);
   write_text(f.dir / "bad.yaml", "meshflow: 1\nname: x\nstages: {a: {kind: nope}}\n");
