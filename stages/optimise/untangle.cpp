@@ -14,9 +14,11 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
+#include <tbb/task_group.h>
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -214,10 +216,30 @@ struct AcceptedPoint {
 struct OutOfBudget {
   enum Which { element, time } which;
 };
+// One invalid element's budget (each element is tried by one task, "parallel" in untangle.hpp):
+// its work and its limit, the stage's start and time limit, and a progress tick.
 struct Budget {
-  // stage_used: work since the last repair (the no-progress budget); repair_work: the work of
-  // the elements repaired so far (each one's whole element_used); total: all work
-  double element_used = 0, element_limit = 0, stage_used = 0, stage_limit = 0, repair_work = 0, total = 0;
+  double element_used = 0, element_limit = 0;
+  double time_limit = 0;
+  std::chrono::steady_clock::time_point t0, last_tick;
+  std::function<void()> tick;  // progress, about every second (thread-safe)
+  void charge(double cost) {
+    if (element_limit > 0 && element_used + cost > element_limit) throw OutOfBudget{OutOfBudget::element};
+    const auto now = std::chrono::steady_clock::now();
+    if (time_limit > 0 && std::chrono::duration<double>(now - t0).count() > time_limit) throw OutOfBudget{OutOfBudget::time};
+    element_used += cost;
+    if (tick && now - last_tick > std::chrono::seconds(1)) {
+      last_tick = now;
+      tick();
+    }
+  }
+};
+
+// The stage's no-progress accounting, kept in the order of the invalid elements whatever order
+// they ran in: stage_used is the work since the last repair, repair_work the work of the
+// elements repaired so far (each one's whole work), total all work.
+struct StageBudget {
+  double stage_used = 0, stage_limit = 0, element_limit = 0, repair_work = 0, total = 0;
   // The no-progress limit. A stage that repaired nothing stops after stage_limit (a hopeless
   // mesh fails fast). Once it has repaired, one element that uses up its element budget does not
   // stop it alone, nor does a run of failures costing less than the repairs so far: the limit is
@@ -229,21 +251,7 @@ struct Budget {
     if (!(repair_work > 0)) return stage_limit;
     return std::max(stage_limit, repair_work) + std::max(element_limit, 0.0);
   }
-  double time_limit = 0;
-  std::chrono::steady_clock::time_point t0, last_tick;
-  std::function<void()> tick;  // progress, about every second
-  void charge(double cost) {
-    if (element_limit > 0 && element_used + cost > element_limit) throw OutOfBudget{OutOfBudget::element};
-    const auto now = std::chrono::steady_clock::now();
-    if (time_limit > 0 && std::chrono::duration<double>(now - t0).count() > time_limit) throw OutOfBudget{OutOfBudget::time};
-    element_used += cost;
-    stage_used += cost;
-    total += cost;
-    if (tick && now - last_tick > std::chrono::seconds(1)) {
-      last_tick = now;
-      tick();
-    }
-  }
+  bool exhausted() const { return stage_limit > 0 && stage_used >= no_progress_limit(); }
 };
 
 double det3(const double J[9]) {
@@ -469,20 +477,21 @@ struct Patch {
   }
 };
 
-}  // namespace
+// ── The mesh's adjacency and what may move ─────────────────────────────────────────────────
+struct Topology {
+  bool volume = false;                // a 3D mesh (else there is nothing to untangle)
+  std::vector<char> fixed;            // never moves: a vertex, on the CAD, on a lower-dimensional element or a pyramid
+  std::vector<char> slides;           // inside a CAD face and may slide on it (the second mode)
+  std::vector<std::uint32_t> start;   // node -> its 3D elements (CSR: adj[start[v] .. start[v + 1]])
+  std::vector<ElemRef> adj;
+};
 
-UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const std::function<void(const std::string&)>& log,
-                        const cad::Shape* shape, const std::function<void(const UntangleProgress&)>& progress) {
-  const auto t0 = std::chrono::steady_clock::now();
-  tbb::task_arena arena(threads > 0 ? threads : tbb::task_arena::automatic);
-  UntangleReport rep;
-  rep.repaired_at_ring.assign(std::max(1, opt.max_rings), 0);
+Topology build_topology(const Mesh& m, const UntangleOptions& opt, const cad::Shape* shape) {
+  Topology t;
   const int dim = m.dimension();
   const std::size_t N = m.num_nodes();
-
-  // node -> 3D elements (CSR), vertex flags, nodes of lower-dimensional elements and pyramids
-  std::vector<char> fixed(N, 0);
-  std::vector<std::uint32_t> start(N + 1, 0);
+  t.fixed.assign(N, 0);
+  t.start.assign(N + 1, 0);
   for (std::uint32_t bi = 0; bi < m.blocks.size(); ++bi) {
     const auto& b = m.blocks[bi];
     const int n = b.nodes_per_element(), nv = model::num_vertices(b.shape);
@@ -490,22 +499,20 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
     for (std::size_t e = 0; e < b.size(); ++e) {
       const std::uint32_t* en = b.element(e);
       for (int a = 0; a < n; ++a) {
-        if (!vol || a < nv || b.shape == Shape::Pyramid) fixed[en[a]] = 1;
-        if (vol) ++start[en[a] + 1];
+        if (!vol || a < nv || b.shape == Shape::Pyramid) t.fixed[en[a]] = 1;
+        if (vol) ++t.start[en[a] + 1];
       }
     }
   }
-  if (dim != 3) {
-    rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    return rep;
-  }
+  t.volume = dim == 3;
+  if (!t.volume) return t;
   if (!m.node_entity_dim.empty())
     for (std::size_t i = 0; i < N; ++i)
-      if (m.node_entity_dim[i] >= 0 && m.node_entity_dim[i] < 3) fixed[i] = 1;
+      if (m.node_entity_dim[i] >= 0 && m.node_entity_dim[i] < 3) t.fixed[i] = 1;
   // nodes inside CAD faces that may slide on them (the second mode, with a shape): not an
   // element's vertex, not on a pyramid, not in a periodic pair (its partner would not follow),
   // with finite parameters on a face the shape has
-  std::vector<char> slides(N, 0);
+  t.slides.assign(N, 0);
   if (shape && opt.surface && m.node_entity_dim.size() == N && m.node_u.size() == N && m.node_v.size() == N) {
     std::vector<char> pinned(N, 0);
     for (const auto& b : m.blocks) {
@@ -519,51 +526,59 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
     for (const auto& l : m.periodic)
       for (auto [a, c] : l.nodes) pinned[a] = pinned[c] = 1;
     for (std::size_t i = 0; i < N; ++i)
-      slides[i] = !pinned[i] && m.node_entity_dim[i] == 2 && m.node_entity_tag[i] >= 1 &&
-                  m.node_entity_tag[i] <= shape->num_faces() && std::isfinite(m.node_u[i]) && std::isfinite(m.node_v[i]);
+      t.slides[i] = !pinned[i] && m.node_entity_dim[i] == 2 && m.node_entity_tag[i] >= 1 &&
+                    m.node_entity_tag[i] <= shape->num_faces() && std::isfinite(m.node_u[i]) && std::isfinite(m.node_v[i]);
   }
-  for (std::size_t i = 0; i < N; ++i) start[i + 1] += start[i];
-  std::vector<ElemRef> adj(start[N]);
-  {
-    std::vector<std::uint32_t> fill(start.begin(), start.end() - 1);
-    for (std::uint32_t bi = 0; bi < m.blocks.size(); ++bi) {
-      const auto& b = m.blocks[bi];
-      if (model::dimension(b.shape) != 3) continue;
-      const int n = b.nodes_per_element();
-      for (std::uint32_t e = 0; e < b.size(); ++e)
-        for (int a = 0; a < n; ++a) adj[fill[b.element(e)[a]]++] = {bi, e};
-    }
-  }
-
-  auto quality = model::mesh_quality(m, threads);
-  std::vector<std::vector<char>> valid(m.blocks.size());
-  std::vector<ElemRef> invalid;
+  for (std::size_t i = 0; i < N; ++i) t.start[i + 1] += t.start[i];
+  t.adj.resize(t.start[N]);
+  std::vector<std::uint32_t> fill(t.start.begin(), t.start.end() - 1);
   for (std::uint32_t bi = 0; bi < m.blocks.size(); ++bi) {
-    valid[bi].assign(quality[bi].size(), 1);
-    for (std::uint32_t e = 0; e < quality[bi].size(); ++e)
-      if (!quality[bi][e].valid) {
-        valid[bi][e] = 0;
-        invalid.push_back({bi, e});
-      }
+    const auto& b = m.blocks[bi];
+    if (model::dimension(b.shape) != 3) continue;
+    const int n = b.nodes_per_element();
+    for (std::uint32_t e = 0; e < b.size(); ++e)
+      for (int a = 0; a < n; ++a) t.adj[fill[b.element(e)[a]]++] = {bi, e};
   }
-  quality.clear();
-  rep.invalid_before = invalid.size();
+  return t;
+}
 
-  auto element_X = [&](const ElemRef& r, std::vector<double>& X) {
+// Why an element is left invalid (untangle.hpp, "report"); 0 = not decided.
+enum Why : std::uint8_t { none, budget, stuck, not_repaired, degenerate, no_free, failed_patch, stage_budget, time_limit };
+const char* const why_name[] = {"",           "budget",        "stuck",        "not repaired", "degenerate",
+                                "no free nodes", "in a failed patch", "no progress", "time limit"};
+
+// What the untangling shares: the mesh, what may move, each 3D element's validity and whether it
+// lies in the largest patch of an element that could not be repaired ("hopeless": not tried).
+// Tasks of elements whose largest patches share no node read and write disjoint parts of it.
+struct State {
+  Mesh& m;
+  const UntangleOptions& opt;
+  const cad::Shape* shape;
+  const Topology& topo;
+  tbb::task_arena& arena;
+  std::vector<std::vector<char>> valid, hopeless;
+  bool logging = false;
+  std::chrono::steady_clock::time_point t0;
+  std::function<void()> tick;  // progress, thread-safe
+
+  State(Mesh& mesh, const UntangleOptions& o, const cad::Shape* s, const Topology& t, tbb::task_arena& a)
+      : m(mesh), opt(o), shape(s), topo(t), arena(a) {}
+
+  std::vector<double> element_X(const ElemRef& r) const {
     const auto& b = m.blocks[r.block];
     const int n = b.nodes_per_element();
     const std::uint32_t* en = b.element(r.index);
-    X.resize(std::size_t(n) * 3);
+    std::vector<double> X(std::size_t(n) * 3);
     for (int a = 0; a < n; ++a) X[3 * a] = m.x[en[a]], X[3 * a + 1] = m.y[en[a]], X[3 * a + 2] = m.z[en[a]];
-  };
-  auto quality_of = [&](const ElemRef& r) {
-    std::vector<double> X;
-    element_X(r, X);
+    return X;
+  }
+  model::ElementQuality quality_of(const ElemRef& r) const {
+    const auto X = element_X(r);
     const auto& b = m.blocks[r.block];
     return model::element_quality(b.shape, b.order, X.data());
-  };
+  }
   // det J of the straight element (vertices only) at its reference centroid
-  auto straight_det = [&](const ElemRef& r) {
+  double straight_det(const ElemRef& r) const {
     const auto& b = m.blocks[r.block];
     const int nv = model::num_vertices(b.shape);
     const std::uint32_t* en = b.element(r.index);
@@ -577,339 +592,536 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
     double J[9];
     model::jacobian(lin, X.data(), c, J);
     return det3(J);
-  };
+  }
+  // mean (longest: !mean) length of the element's vertex edges
+  double vertex_edge(const ElemRef& r, bool mean) const {
+    const auto& b = m.blocks[r.block];
+    const std::uint32_t* en = b.element(r.index);
+    const auto& ev = model::edge_vertices(b.shape);
+    double s = 0;
+    for (auto [a, c] : ev) {
+      const double l = std::hypot(m.x[en[a]] - m.x[en[c]], m.y[en[a]] - m.y[en[c]], m.z[en[a]] - m.z[en[c]]);
+      s = mean ? s + l : std::max(s, l);
+    }
+    return mean ? s / double(ev.size()) : s;
+  }
+  // the patch grown by one ring of node neighbours (sorted, unique)
+  std::vector<ElemRef> grow(const std::vector<ElemRef>& patch) const {
+    std::vector<ElemRef> grown = patch;
+    for (const ElemRef& r : patch) {
+      const auto& b = m.blocks[r.block];
+      const std::uint32_t* en = b.element(r.index);
+      for (int a = 0; a < b.nodes_per_element(); ++a)
+        for (std::uint32_t k = topo.start[en[a]]; k < topo.start[en[a] + 1]; ++k) grown.push_back(topo.adj[k]);
+    }
+    std::sort(grown.begin(), grown.end());
+    grown.erase(std::unique(grown.begin(), grown.end()), grown.end());
+    return grown;
+  }
+};
 
-  // Invalid elements inside the largest patch of an element that could not be repaired: their own
-  // patches are nearly the same nodes and elements, so they are not tried again (an unrepairable
-  // cluster, e.g. a folded face on the CAD, would otherwise cost max_rings attempts per member).
-  std::vector<std::vector<char>> hopeless(m.blocks.size());
-  for (std::uint32_t bi = 0; bi < m.blocks.size(); ++bi) hopeless[bi].assign(valid[bi].size(), 0);
-  // Why an element is left invalid (untangle.hpp, "report"); 0 = not decided.
-  enum Why : std::uint8_t { none, budget, stuck, not_repaired, degenerate, no_free, failed_patch, stage_budget, time_limit };
-  static const char* const why_name[] = {"",           "budget",        "stuck",        "not repaired", "degenerate",
-                                         "no free nodes", "in a failed patch", "no progress", "time limit"};
-  std::vector<std::vector<std::uint8_t>> why(m.blocks.size());
-  for (std::uint32_t bi = 0; bi < m.blocks.size(); ++bi) why[bi].assign(valid[bi].size(), none);
-  std::size_t visited = 0;
+// What trying one invalid element did: enough to account for it in the order of the invalid
+// elements afterwards, and to undo it when the stage turns out to have stopped before it.
+struct NodeBefore {
+  std::uint32_t v;
+  bool on_face;  // slid on a CAD face: (u, w) are its parameters before
+  double x, y, z, u, w;
+};
+struct ElementRun {
+  enum Kind : std::uint8_t { not_run, already_valid, in_failed_patch, tried } kind = not_run;
+  bool repaired = false, sliding = false;
+  int ring = 0;
+  Why why = none;  // tried, not repaired
+  double work = 0;
+  std::size_t attempts = 0, early_exits = 0, stuck = 0, nodes_moved = 0, surface_nodes_moved = 0;
+  double max_move = 0;
+  std::vector<NodeBefore> moved;                       // the kept patch's free nodes, before
+  std::vector<std::pair<ElemRef, char>> valid_before;  // validity flags it changed, before
+  std::vector<ElemRef> marked_hopeless;
+  std::vector<std::string> log;
+};
+
+// The patch problem of `patch` in `mode` (0: off-CAD nodes free; 1: also the nodes sliding on CAD
+// faces): its free nodes and the elements that have one. none: nothing to free (mode 1: no
+// sliding node); degenerate: a patch element's straight version has no volume.
+enum class Built { ok, none, degenerate };
+Built build_patch(const State& S, const std::vector<ElemRef>& patch, int mode, double h, Patch& P) {
+  const Mesh& m = S.m;
+  const auto& T = S.topo;
+  // free nodes: off the CAD (mode 1: or sliding on a CAD face), not a vertex, every element in the patch
+  bool any_sliding = false;
+  for (const ElemRef& r : patch) {
+    const auto& b = m.blocks[r.block];
+    const std::uint32_t* en = b.element(r.index);
+    for (int a = 0; a < b.nodes_per_element(); ++a) {
+      const std::uint32_t v = en[a];
+      const bool slide = mode == 1 && T.slides[v];
+      if ((T.fixed[v] && !slide) || P.free_index.count(v)) continue;
+      bool inside = true;
+      for (std::uint32_t k = T.start[v]; k < T.start[v + 1] && inside; ++k)
+        inside = std::binary_search(patch.begin(), patch.end(), T.adj[k]);
+      if (!inside) continue;
+      P.free_index.emplace(v, 0);
+      any_sliding = any_sliding || slide;
+    }
+  }
+  if (P.free_index.empty() || (mode == 1 && !any_sliding)) return Built::none;
+  int idx = 0;
+  for (auto& [v, i] : P.free_index) {  // node order: deterministic
+    i = idx++;
+    P.free.push_back(v);
+    P.x0.insert(P.x0.end(), {m.x[v], m.y[v], m.z[v]});
+    P.var.push_back(P.nvars);
+    if (mode == 1 && T.slides[v]) {
+      const int f = m.node_entity_tag[v] - 1;
+      const auto d = S.shape->face_eval(f, m.node_u[v], m.node_v[v]);
+      const auto bnd = S.shape->face_uv_bounds(f);
+      const auto per = S.shape->face_periods(f);
+      const double nu = std::sqrt(d.du.x * d.du.x + d.du.y * d.du.y + d.du.z * d.du.z);
+      const double nv = std::sqrt(d.dv.x * d.dv.x + d.dv.y * d.dv.y + d.dv.z * d.dv.z);
+      P.face.push_back(f);
+      P.uv0.insert(P.uv0.end(), {m.node_u[v], m.node_v[v]});
+      // a unit step moves the node by about h; a degenerate direction (a pole) does not move
+      P.scale.insert(P.scale.end(), {nu > 0 ? h / nu : 0.0, nv > 0 ? h / nv : 0.0});
+      // periodic directions are unbounded (the surface repeats), others stay in the face's box
+      P.lo.insert(P.lo.end(), {per[0] > 0 ? -INFINITY : std::min(bnd.u0, m.node_u[v]), per[1] > 0 ? -INFINITY : std::min(bnd.v0, m.node_v[v])});
+      P.hi.insert(P.hi.end(), {per[0] > 0 ? INFINITY : std::max(bnd.u1, m.node_u[v]), per[1] > 0 ? INFINITY : std::max(bnd.v1, m.node_v[v])});
+      P.nvars += 2;
+    } else {
+      P.face.push_back(-1);
+      P.uv0.insert(P.uv0.end(), {0.0, 0.0});
+      P.scale.insert(P.scale.end(), {0.0, 0.0});
+      P.lo.insert(P.lo.end(), {0.0, 0.0});
+      P.hi.insert(P.hi.end(), {0.0, 0.0});
+      P.nvars += 3;
+    }
+  }
+  bool degenerate = false;
+  for (const ElemRef& r : patch) {
+    const auto& b = m.blocks[r.block];
+    const std::uint32_t* en = b.element(r.index);
+    std::vector<int> slot(b.nodes_per_element(), -1);
+    bool has = false;
+    for (int a = 0; a < b.nodes_per_element(); ++a) {
+      auto f = P.free_index.find(en[a]);
+      if (f != P.free_index.end()) slot[a] = f->second, has = true;
+    }
+    if (!has) continue;
+    const double j = S.straight_det(r);
+    // degenerate: its straight version has no volume, or a relative one (det J / longest
+    // vertex edge^3) below kMinRelativeVolume (coincident nodes: aspect ratio 1e14, the
+    // target det J / det J_straight is meaningless and the optimiser only grinds)
+    const double L = S.vertex_edge(r, false);
+    if (!(j > kMinRelativeVolume * L * L * L)) degenerate = true;
+    P.elems.push_back(r);
+    P.slots.push_back(std::move(slot));
+    P.jref.push_back(j);
+  }
+  return degenerate ? Built::degenerate : Built::ok;
+}
+
+// The acceptance floors of a patch: never worse (no element may end below the worst of the
+// patch before: the invalid element's scaled Jacobian, or another invalid one's if lower), and
+// for the early exit each element's own scaled Jacobian before, or kEarlyExitFloor if that is
+// higher (an invalid one: kEarlyExitFloor).
+void set_floors(const State& S, const ElemRef& bad, Patch& P) {
+  P.worst_before = INFINITY;
+  P.sj_floor.clear();
+  P.must_valid.clear();
+  for (const ElemRef& r : P.elems) {
+    const double sj = S.quality_of(r).scaled_jacobian;
+    const bool v = S.valid[r.block][r.index];
+    P.worst_before = std::min(P.worst_before, sj);
+    P.sj_floor.push_back(v ? std::min(sj, kEarlyExitFloor) : kEarlyExitFloor);
+    P.must_valid.push_back(v || r == bad);
+  }
+}
+
+// One L-BFGS attempt on the patch from its start (attempt 0, 1, 2: the lattices of
+// sample_order and the targets of untangle.hpp). out >= 0: a budget ran out (OutOfBudget::Which).
+struct Minimised {
+  Eigen::VectorXd y;
+  double fx = 0;
+  int iterations = 0;
+  bool early = false;
+  int out = -1;
+};
+Minimised minimise(Patch& P, int attempt, const UntangleOptions& opt, Budget& B) {
+  LBFGSpp::LBFGSParam<double> param;
+  param.m = 8;
+  param.epsilon = 1e-10;
+  param.epsilon_rel = 0;
+  // the coefficients' penalty is stiffer (T's entries are large): more iterations
+  param.max_iterations = attempt == 2 ? 4 * opt.max_iterations : opt.max_iterations;
+  param.max_linesearch = 40;
+  LBFGSpp::LBFGSSolver<double> solver(param);
+  Minimised r;
+  r.y = Eigen::VectorXd::Zero(P.nvars);
+  P.budget = &B;
+  // the second and third attempts (denser samples, then det J's Bernstein coefficients)
+  // cost up to 10 x the first and often run all their iterations while the patch has been
+  // acceptable for a long time (DLR-F6: 82 of 91 s of untangling): they stop at the first
+  // tested point that passes. The floor (kEarlyExitFloor) keeps a repaired element well
+  // above the meshes' lowest scaled Jacobians (0.003-0.01), and a valid element of the
+  // patch at its own quality or above the floor, so stopping early does not lower the
+  // mesh's minimum.
+  P.check_every = attempt >= 1 ? 10 : 0;
+  P.evaluations = 0;
+  try {
+    r.iterations = solver.minimize(P, r.y, r.fx);
+  } catch (const AcceptedPoint& a) {
+    r.y = a.y;
+    r.early = true;
+  } catch (const OutOfBudget& e) {
+    r.out = e.which;  // nothing was applied to the mesh yet
+  } catch (const std::exception&) {
+    // a failed line search leaves y at the last accepted point, which is a descent of the energy
+  }
+  P.budget = nullptr;  // the diagnostic evaluation of the log is not charged
+  P.check_every = 0;
+  return r;
+}
+
+// Moves the patch's free nodes to y (surface nodes by their parameters), and back to the start.
+void apply(State& S, const Patch& P, const Eigen::VectorXd& y) {
+  Mesh& m = S.m;
+  for (std::size_t i = 0; i < P.free.size(); ++i) {
+    const std::uint32_t v = P.free[i];
+    if (P.face[i] < 0) {
+      m.x[v] = P.x0[3 * i] + P.h * y[P.var[i]];
+      m.y[v] = P.x0[3 * i + 1] + P.h * y[P.var[i] + 1];
+      m.z[v] = P.x0[3 * i + 2] + P.h * y[P.var[i] + 2];
+    } else {
+      double p[2];
+      bool cl[2];
+      P.params(i, y, p, cl);
+      const auto x = S.shape->face_point(P.face[i], p[0], p[1]);
+      m.x[v] = x.x, m.y[v] = x.y, m.z[v] = x.z;
+      m.node_u[v] = p[0], m.node_v[v] = p[1];
+    }
+  }
+}
+void restore(State& S, const Patch& P) {
+  Mesh& m = S.m;
+  for (std::size_t i = 0; i < P.free.size(); ++i) {
+    const std::uint32_t v = P.free[i];
+    m.x[v] = P.x0[3 * i];
+    m.y[v] = P.x0[3 * i + 1];
+    m.z[v] = P.x0[3 * i + 2];
+    if (P.face[i] >= 0) m.node_u[v] = P.uv0[2 * i], m.node_v[v] = P.uv0[2 * i + 1];
+  }
+}
+
+// The acceptance test ("accept" in untangle.hpp) of the applied patch: ok, and each element's
+// validity now.
+bool accepted(const State& S, const Patch& P, const ElemRef& bad, std::vector<std::pair<ElemRef, char>>& now) {
+  bool ok = true;
+  now.clear();
+  for (const ElemRef& r : P.elems) {
+    const auto q = S.quality_of(r);
+    const char v = q.valid ? 1 : 0;
+    now.push_back({r, v});
+    if (S.valid[r.block][r.index] && !v) ok = false;
+    if (r == bad && !v) ok = false;
+    if (q.scaled_jacobian < P.worst_before) ok = false;
+  }
+  return ok;
+}
+
+// Keeps the applied patch: the new validity flags, and what it moved (run.moved, the counts).
+void keep(State& S, const Patch& P, const std::vector<std::pair<ElemRef, char>>& now, ElementRun& run) {
+  const Mesh& m = S.m;
+  for (auto& [r, v] : now) {
+    char& f = S.valid[r.block][r.index];
+    if (f != v) run.valid_before.push_back({r, f});
+    f = v;
+  }
+  for (std::size_t i = 0; i < P.free.size(); ++i) {
+    const std::uint32_t v = P.free[i];
+    const bool f = P.face[i] >= 0;
+    run.moved.push_back({v, f, P.x0[3 * i], P.x0[3 * i + 1], P.x0[3 * i + 2], f ? P.uv0[2 * i] : 0.0, f ? P.uv0[2 * i + 1] : 0.0});
+    const double d = std::hypot(m.x[v] - P.x0[3 * i], m.y[v] - P.x0[3 * i + 1], m.z[v] - P.x0[3 * i + 2]) / P.h;
+    if (d > 0) ++(P.face[i] < 0 ? run.nodes_moved : run.surface_nodes_moved);
+    run.max_move = std::max(run.max_move, d);
+  }
+}
+
+void log_attempt(const State& S, const Patch& P, const ElemRef& bad, int ring, int mode, const Minimised& r, double seconds,
+                 bool ok, const std::vector<std::pair<ElemRef, char>>& now, ElementRun& run) {
+  Eigen::VectorXd g0(r.y.size()), z0 = Eigen::VectorXd::Zero(r.y.size());
+  char line[256];
+  std::snprintf(line, sizeof line, "untangle: element %u/%u ring %d%s: %zu free nodes, %zu elements, energy %g -> %g, %d iterations%s, %.2f s: %s",
+                bad.block, bad.index, ring, mode ? " sliding on the CAD" : "", P.free.size(), P.elems.size(), P(z0, g0), r.fx,
+                r.iterations, r.early ? " (stopped early: acceptable)" : "", seconds, ok ? "repaired" : "not repaired");
+  run.log.push_back(line);
+  for (auto& [e, v] : now)
+    if (!v) {
+      std::snprintf(line, sizeof line, "untangle:   still invalid %u/%u (valid before: %d)", e.block, e.index, int(S.valid[e.block][e.index]));
+      run.log.push_back(line);
+    }
+}
+
+// Tries to repair one invalid element ("patch" .. "accept" in untangle.hpp): rings 1..max_rings,
+// each off-CAD then sliding, each in up to three attempts. Reads and writes only its largest
+// patch (the nodes of its elements, their validity and hopeless flags).
+ElementRun repair_element(State& S, const ElemRef& bad) {
+  ElementRun run;
+  run.kind = S.valid[bad.block][bad.index]      ? ElementRun::already_valid  // repaired with an earlier patch
+             : S.hopeless[bad.block][bad.index] ? ElementRun::in_failed_patch
+                                                : ElementRun::tried;
+  if (run.kind != ElementRun::tried) return run;
+  const auto& opt = S.opt;
   Budget B;
-  B.t0 = B.last_tick = t0;
   B.element_limit = opt.element_budget;
-  B.stage_limit = opt.stage_budget;
   B.time_limit = opt.time_limit;
-  auto report_progress = [&] {
-    if (progress)
-      progress({visited, invalid.size(), rep.repaired, std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count()});
-  };
-  B.tick = report_progress;
-  Why stopped = none;  // stage_budget or time_limit: the remaining elements are not tried
-  for (const ElemRef& bad : invalid) {
-    report_progress();
-    ++visited;
-    if (valid[bad.block][bad.index]) continue;  // repaired with an earlier patch
-    if (hopeless[bad.block][bad.index]) {
-      ++rep.skipped;
-      why[bad.block][bad.index] = failed_patch;
-      continue;
-    }
-    if (B.stage_limit > 0 && B.stage_used >= B.no_progress_limit()) {  // no progress: stop (checked between elements)
-      why[bad.block][bad.index] = stage_budget;
-      stopped = stage_budget;
-      break;
-    }
-    B.element_used = 0;
-    bool any_attempt = false, any_degenerate = false, last_stuck = false;
-    int out = -1;  // OutOfBudget::Which, when a budget ran out on this element
-    // element size h: mean vertex-edge length
-    double h = 0;
-    {
-      const auto& b = m.blocks[bad.block];
-      const std::uint32_t* en = b.element(bad.index);
-      const auto& ev = model::edge_vertices(b.shape);
-      for (auto [a, c] : ev)
-        h += std::hypot(m.x[en[a]] - m.x[en[c]], m.y[en[a]] - m.y[en[c]], m.z[en[a]] - m.z[en[c]]);
-      h /= double(ev.size());
-    }
-    if (!(h > 0)) {
-      why[bad.block][bad.index] = degenerate;
-      continue;
-    }
-    std::vector<ElemRef> patch{bad};
-    bool done = false;
-    for (int ring = 1; ring <= opt.max_rings && !done && out < 0; ++ring) {
-      // grow the patch by one ring of node neighbours
-      {
-        std::vector<ElemRef> grown = patch;
-        for (const ElemRef& r : patch) {
-          const auto& b = m.blocks[r.block];
-          const std::uint32_t* en = b.element(r.index);
-          for (int a = 0; a < b.nodes_per_element(); ++a)
-            for (std::uint32_t k = start[en[a]]; k < start[en[a] + 1]; ++k) grown.push_back(adj[k]);
-        }
-        std::sort(grown.begin(), grown.end());
-        grown.erase(std::unique(grown.begin(), grown.end()), grown.end());
-        patch = std::move(grown);
-      }
-      // mode 0 moves the off-CAD nodes only; mode 1 (with a shape) also slides the nodes inside
-      // CAD faces on their faces: a wall face folded on the CAD cannot be repaired by the volume
-      for (int mode = 0; mode < (shape && opt.surface ? 2 : 1) && !done && out < 0; ++mode) {
-      Patch P(m);
-      P.arena = &arena;
-      P.shape = shape;
+  B.t0 = S.t0;
+  B.last_tick = std::chrono::steady_clock::now();
+  B.tick = S.tick;
+  const double h = S.vertex_edge(bad, true);  // element size: mean vertex-edge length
+  if (!(h > 0)) {
+    run.why = degenerate;
+    return run;
+  }
+  bool any_attempt = false, any_degenerate = false, last_stuck = false, done = false;
+  int out = -1;  // OutOfBudget::Which, when a budget ran out
+  std::vector<ElemRef> patch{bad};
+  for (int ring = 1; ring <= opt.max_rings && !done && out < 0; ++ring) {
+    patch = S.grow(patch);
+    // mode 0 moves the off-CAD nodes only; mode 1 (with a shape) also slides the nodes inside
+    // CAD faces on their faces: a wall face folded on the CAD cannot be repaired by the volume
+    for (int mode = 0; mode < (S.shape && opt.surface ? 2 : 1) && !done && out < 0; ++mode) {
+      Patch P(S.m);
+      P.arena = &S.arena;
+      P.shape = S.shape;
       P.h = h;
-      P.target = opt.target;
       P.spring = opt.spring;
-      // free nodes: off the CAD (mode 1: or sliding on a CAD face), not a vertex, every element in the patch
-      bool any_sliding = false;
-      for (const ElemRef& r : patch) {
-        const auto& b = m.blocks[r.block];
-        const std::uint32_t* en = b.element(r.index);
-        for (int a = 0; a < b.nodes_per_element(); ++a) {
-          const std::uint32_t v = en[a];
-          const bool slide = mode == 1 && slides[v];
-          if ((fixed[v] && !slide) || P.free_index.count(v)) continue;
-          bool inside = true;
-          for (std::uint32_t k = start[v]; k < start[v + 1] && inside; ++k)
-            inside = std::binary_search(patch.begin(), patch.end(), adj[k]);
-          if (!inside) continue;
-          P.free_index.emplace(v, 0);
-          any_sliding = any_sliding || slide;
-        }
-      }
-      if (P.free_index.empty() || (mode == 1 && !any_sliding)) continue;
-      int idx = 0;
-      for (auto& [v, i] : P.free_index) {  // node order: deterministic
-        i = idx++;
-        P.free.push_back(v);
-        P.x0.insert(P.x0.end(), {m.x[v], m.y[v], m.z[v]});
-        P.var.push_back(P.nvars);
-        if (mode == 1 && slides[v]) {
-          const int f = m.node_entity_tag[v] - 1;
-          const auto d = shape->face_eval(f, m.node_u[v], m.node_v[v]);
-          const auto bnd = shape->face_uv_bounds(f);
-          const auto per = shape->face_periods(f);
-          const double nu = std::sqrt(d.du.x * d.du.x + d.du.y * d.du.y + d.du.z * d.du.z);
-          const double nv = std::sqrt(d.dv.x * d.dv.x + d.dv.y * d.dv.y + d.dv.z * d.dv.z);
-          P.face.push_back(f);
-          P.uv0.insert(P.uv0.end(), {m.node_u[v], m.node_v[v]});
-          // a unit step moves the node by about h; a degenerate direction (a pole) does not move
-          P.scale.insert(P.scale.end(), {nu > 0 ? h / nu : 0.0, nv > 0 ? h / nv : 0.0});
-          // periodic directions are unbounded (the surface repeats), others stay in the face's box
-          P.lo.insert(P.lo.end(), {per[0] > 0 ? -INFINITY : std::min(bnd.u0, m.node_u[v]), per[1] > 0 ? -INFINITY : std::min(bnd.v0, m.node_v[v])});
-          P.hi.insert(P.hi.end(), {per[0] > 0 ? INFINITY : std::max(bnd.u1, m.node_u[v]), per[1] > 0 ? INFINITY : std::max(bnd.v1, m.node_v[v])});
-          P.nvars += 2;
-        } else {
-          P.face.push_back(-1);
-          P.uv0.insert(P.uv0.end(), {0.0, 0.0});
-          P.scale.insert(P.scale.end(), {0.0, 0.0});
-          P.lo.insert(P.lo.end(), {0.0, 0.0});
-          P.hi.insert(P.hi.end(), {0.0, 0.0});
-          P.nvars += 3;
-        }
-      }
-      bool degenerate = false;
-      for (const ElemRef& r : patch) {
-        const auto& b = m.blocks[r.block];
-        const std::uint32_t* en = b.element(r.index);
-        std::vector<int> slot(b.nodes_per_element(), -1);
-        bool has = false;
-        for (int a = 0; a < b.nodes_per_element(); ++a) {
-          auto f = P.free_index.find(en[a]);
-          if (f != P.free_index.end()) slot[a] = f->second, has = true;
-        }
-        if (!has) continue;
-        const double j = straight_det(r);
-        // degenerate: its straight version has no volume, or a relative one (det J / longest
-        // vertex edge^3) below kMinRelativeVolume (coincident nodes: aspect ratio 1e14, the
-        // target det J / det J_straight is meaningless and the optimiser only grinds)
-        double L = 0;
-        {
-          const auto& b = m.blocks[r.block];
-          const std::uint32_t* en = b.element(r.index);
-          for (auto [a, c] : model::edge_vertices(b.shape))
-            L = std::max(L, std::hypot(m.x[en[a]] - m.x[en[c]], m.y[en[a]] - m.y[en[c]], m.z[en[a]] - m.z[en[c]]));
-        }
-        if (!(j > kMinRelativeVolume * L * L * L)) degenerate = true;
-        P.elems.push_back(r);
-        P.slots.push_back(std::move(slot));
-        P.jref.push_back(j);
-      }
-      if (degenerate) {  // a straight element is not valid: nothing to aim at
+      const Built built = build_patch(S, patch, mode, h, P);
+      if (built == Built::none) continue;
+      if (built == Built::degenerate) {  // a straight element is not valid: nothing to aim at
         any_degenerate = true;
         continue;
       }
-      // never worse: a repair must not leave any element of the patch below the worst before
-      // (the invalid element's scaled Jacobian, or another invalid one's if lower)
-      double worst_before = INFINITY;
-      // early exit's floor per element: its own scaled Jacobian before, or kEarlyExitFloor if
-      // that is higher (an invalid one: kEarlyExitFloor)
-      std::vector<double> sj_floor;
-      for (const ElemRef& r : P.elems) {
-        const double sj = quality_of(r).scaled_jacobian;
-        worst_before = std::min(worst_before, sj);
-        sj_floor.push_back(valid[r.block][r.index] ? std::min(sj, kEarlyExitFloor) : kEarlyExitFloor);
-      }
+      set_floors(S, bad, P);
       // the target on the coarse samples first, then a higher one on the dense samples: samples
       // just above the target can leave det J negative between them, which the Bezier check
       // finds; then (tets, prisms) half the target on det J's Bernstein coefficients, which see the dips
-      for (int attempt = 0; attempt < 3 && !done && out < 0; ++attempt) {
+      for (int attempt = 0; attempt < 3 && !done; ++attempt) {
         P.target = attempt == 0 ? opt.target : attempt == 1 ? std::max(opt.target, std::min(1.0, 2.5 * opt.target)) : 0.5 * opt.target;
         P.lattice = attempt;
         if (attempt == 2 && std::none_of(P.elems.begin(), P.elems.end(), [&](const ElemRef& r) {
-              return has_bezier_lattice(m.blocks[r.block].shape, m.blocks[r.block].order);
+              return has_bezier_lattice(S.m.blocks[r.block].shape, S.m.blocks[r.block].order);
             }))
           break;  // no tet or prism: the third attempt would repeat the second
-        ++rep.attempts;
+        ++run.attempts;
         any_attempt = true;
-
-        LBFGSpp::LBFGSParam<double> param;
-        param.m = 8;
-        param.epsilon = 1e-10;
-        param.epsilon_rel = 0;
-        // the coefficients' penalty is stiffer (T's entries are large): more iterations
-        param.max_iterations = attempt == 2 ? 4 * opt.max_iterations : opt.max_iterations;
-        param.max_linesearch = 40;
-        LBFGSpp::LBFGSSolver<double> solver(param);
-        Eigen::VectorXd y = Eigen::VectorXd::Zero(P.nvars);
-        double fx = 0;
-        int iters = 0;
-        bool early = false;
         const auto ta = std::chrono::steady_clock::now();
-        P.budget = &B;
-        // the second and third attempts (denser samples, then det J's Bernstein coefficients)
-        // cost up to 10 x the first and often run all their iterations while the patch has been
-        // acceptable for a long time (DLR-F6: 82 of 91 s of untangling): they stop at the first
-        // tested point that passes. The floor (kEarlyExitFloor) keeps a repaired element well
-        // above the meshes' lowest scaled Jacobians (0.003-0.01), and a valid element of the
-        // patch at its own quality or above the floor, so stopping early does not lower the
-        // mesh's minimum.
-        P.check_every = attempt >= 1 ? 10 : 0;
-        P.evaluations = 0;
-        P.worst_before = worst_before;
-        P.sj_floor = sj_floor;
-        P.must_valid.clear();
-        for (const ElemRef& r : P.elems) P.must_valid.push_back(valid[r.block][r.index] || r == bad);
-        try {
-          iters = solver.minimize(P, y, fx);
-        } catch (const AcceptedPoint& a) {
-          y = a.y;
-          early = true;
-        } catch (const OutOfBudget& e) {
-          // nothing was applied to the mesh yet: give up on this element (or on all, stage/time)
-          out = e.which;
+        const Minimised r = minimise(P, attempt, opt, B);
+        if (r.out >= 0) {  // give up on this element (or on all: time)
+          out = r.out;
           break;
-        } catch (const std::exception&) {
-          // a failed line search leaves y at the last accepted point, which is a descent of the energy
         }
-        P.budget = nullptr;  // the diagnostic evaluation below is not charged
-        P.check_every = 0;
-        rep.early_exits += early;
+        run.early_exits += r.early;
         // a diverged line search can leave non-finite values: that attempt failed, nothing moves
-        if (!y.allFinite()) continue;
-        // apply, check, keep or restore
-        for (std::size_t i = 0; i < P.free.size(); ++i) {
-          const std::uint32_t v = P.free[i];
-          if (P.face[i] < 0) {
-            m.x[v] = P.x0[3 * i] + h * y[P.var[i]];
-            m.y[v] = P.x0[3 * i + 1] + h * y[P.var[i] + 1];
-            m.z[v] = P.x0[3 * i + 2] + h * y[P.var[i] + 2];
-          } else {
-            double p[2];
-            bool cl[2];
-            P.params(i, y, p, cl);
-            const auto x = shape->face_point(P.face[i], p[0], p[1]);
-            m.x[v] = x.x, m.y[v] = x.y, m.z[v] = x.z;
-            m.node_u[v] = p[0], m.node_v[v] = p[1];
-          }
-        }
-        bool ok = true;
+        if (!r.y.allFinite()) continue;
+        apply(S, P, r.y);
         std::vector<std::pair<ElemRef, char>> now;
-        for (const ElemRef& r : P.elems) {
-          const auto q = quality_of(r);
-          const char v = q.valid ? 1 : 0;
-          now.push_back({r, v});
-          if (valid[r.block][r.index] && !v) ok = false;
-          if (r == bad && !v) ok = false;
-          if (q.scaled_jacobian < worst_before) ok = false;
-        }
-        if (log) {
-          Eigen::VectorXd g0(y.size()), z0 = Eigen::VectorXd::Zero(y.size());
-          char line[256];
-          std::snprintf(line, sizeof line, "untangle: element %u/%u ring %d%s: %zu free nodes, %zu elements, energy %g -> %g, %d iterations%s, %.2f s: %s",
-                        bad.block, bad.index, ring, mode ? " sliding on the CAD" : "", P.free.size(), P.elems.size(), P(z0, g0), fx, iters, early ? " (stopped early: acceptable)" : "",
-                        std::chrono::duration<double>(std::chrono::steady_clock::now() - ta).count(), ok ? "repaired" : "not repaired");
-          log(line);
-          for (auto& [r, v] : now)
-            if (!v) {
-              std::snprintf(line, sizeof line, "untangle:   still invalid %u/%u (valid before: %d)", r.block, r.index, int(valid[r.block][r.index]));
-              log(line);
-            }
-        }
+        const bool ok = accepted(S, P, bad, now);
+        if (S.logging)
+          log_attempt(S, P, bad, ring, mode, r, std::chrono::duration<double>(std::chrono::steady_clock::now() - ta).count(), ok, now, run);
         if (!ok) {
           // the coarse attempt left the energy at or above one sample's full penalty (target^2,
           // a sample at r <= 0 alone costs that much): the patch is stuck far from valid, and the
           // later attempts (a higher target on more samples, then det J's Bernstein coefficients,
           // both harder to satisfy) cannot do better; they cost up to 10 x the first (Rotor 67:
           // 1.3 and 8 s after 0.5 s on a 45-element patch, 5 and 29 s on 281 elements)
-          const bool stuck = attempt == 0 && fx >= P.target * P.target;
-          if (stuck) ++rep.stuck;
-          last_stuck = stuck;
-          for (std::size_t i = 0; i < P.free.size(); ++i) {
-            const std::uint32_t v = P.free[i];
-            m.x[v] = P.x0[3 * i];
-            m.y[v] = P.x0[3 * i + 1];
-            m.z[v] = P.x0[3 * i + 2];
-            if (P.face[i] >= 0) m.node_u[v] = P.uv0[2 * i], m.node_v[v] = P.uv0[2 * i + 1];
-          }
-          if (stuck) break;
+          const bool stuck_now = attempt == 0 && r.fx >= P.target * P.target;
+          run.stuck += stuck_now;
+          last_stuck = stuck_now;
+          restore(S, P);
+          if (stuck_now) break;
           continue;
         }
-        for (auto& [r, v] : now) valid[r.block][r.index] = v;
-        for (std::size_t i = 0; i < P.free.size(); ++i) {
-          const std::uint32_t v = P.free[i];
-          const double d = std::hypot(m.x[v] - P.x0[3 * i], m.y[v] - P.x0[3 * i + 1], m.z[v] - P.x0[3 * i + 2]) / h;
-          if (d > 0) ++(P.face[i] < 0 ? rep.nodes_moved : rep.surface_nodes_moved);
-          rep.max_move = std::max(rep.max_move, d);
-        }
-        ++rep.repaired;
-        B.repair_work += B.element_used;
-        B.stage_used = 0;  // progress: the no-progress budget starts again
-        ++rep.repaired_at_ring[ring - 1];
-        rep.repaired_sliding += mode == 1;
-        done = true;
-      }
+        keep(S, P, now, run);
+        run.repaired = done = true;
+        run.ring = ring;
+        run.sliding = mode == 1;
       }
     }
-    rep.max_element_work = std::max(rep.max_element_work, B.element_used);
-    if (done) continue;
-    Why w = out == OutOfBudget::element ? budget
+  }
+  run.work = B.element_used;
+  if (done) return run;
+  run.why = out == OutOfBudget::element ? budget
             : out == OutOfBudget::time  ? time_limit
             : any_attempt               ? (last_stuck ? stuck : not_repaired)
             : any_degenerate            ? degenerate
                                         : no_free;
-    why[bad.block][bad.index] = w;
-    if (w == stage_budget || w == time_limit) {
-      stopped = w;
-      break;
+  if (run.why == time_limit) return run;
+  // the invalid elements of its largest patch are not tried again ("hopeless")
+  for (const ElemRef& r : patch)
+    if (!S.valid[r.block][r.index] && !S.hopeless[r.block][r.index]) {
+      S.hopeless[r.block][r.index] = 1;
+      run.marked_hopeless.push_back(r);
     }
-    if (w == budget) ++rep.budget_exhausted;
-    for (const ElemRef& r : patch)
-      if (!valid[r.block][r.index]) hopeless[r.block][r.index] = 1;
-  }
-  rep.work = B.total;
-  rep.repair_work = B.repair_work;
-  rep.stage_budget_exhausted = stopped == stage_budget;
-  rep.time_limit_fired = stopped == time_limit;
+  return run;
+}
 
+// Undoes a run (the stage stopped before its element).
+void undo(State& S, const ElementRun& run) {
+  for (const auto& n : run.moved) {
+    S.m.x[n.v] = n.x, S.m.y[n.v] = n.y, S.m.z[n.v] = n.z;
+    if (n.on_face) S.m.node_u[n.v] = n.u, S.m.node_v[n.v] = n.w;
+  }
+  for (const auto& [r, v] : run.valid_before) S.valid[r.block][r.index] = v;
+  for (const ElemRef& r : run.marked_hopeless) S.hopeless[r.block][r.index] = 0;
+}
+
+// The invalid elements whose largest patches share a node with an earlier one's: succ[j] lists
+// the later ones of j, preds[k] counts the earlier ones of k. Elements whose largest patches are
+// node-disjoint read and write disjoint data, so running each after the earlier ones it conflicts
+// with gives what running them all one after another in order gives.
+void conflicts(const State& S, const std::vector<ElemRef>& invalid, std::vector<std::vector<std::uint32_t>>& succ,
+               std::vector<int>& preds) {
+  const std::size_t n = invalid.size();
+  succ.assign(n, {});
+  preds.assign(n, 0);
+  // the nodes of each largest patch, then node -> the elements whose patch has it (in order)
+  std::vector<std::vector<std::uint32_t>> nodes_of(n);
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> pairs;  // (node, element k)
+  for (std::size_t k = 0; k < n; ++k) {
+    std::vector<ElemRef> patch{invalid[k]};
+    for (int ring = 1; ring <= S.opt.max_rings; ++ring) patch = S.grow(patch);
+    std::vector<std::uint32_t> nodes;
+    for (const ElemRef& r : patch) {
+      const auto& b = S.m.blocks[r.block];
+      const std::uint32_t* en = b.element(r.index);
+      nodes.insert(nodes.end(), en, en + b.nodes_per_element());
+    }
+    std::sort(nodes.begin(), nodes.end());
+    nodes.erase(std::unique(nodes.begin(), nodes.end()), nodes.end());
+    for (std::uint32_t v : nodes) pairs.push_back({v, std::uint32_t(k)});
+    nodes_of[k] = std::move(nodes);
+  }
+  std::sort(pairs.begin(), pairs.end());
+  std::vector<std::size_t> mark(n, SIZE_MAX);
+  for (std::size_t k = 0; k < n; ++k)
+    for (std::uint32_t v : nodes_of[k]) {
+      auto it = std::lower_bound(pairs.begin(), pairs.end(), std::make_pair(v, std::uint32_t(0)));
+      for (; it != pairs.end() && it->first == v && it->second < k; ++it)
+        if (mark[it->second] != k) {
+          mark[it->second] = k;
+          succ[it->second].push_back(std::uint32_t(k));
+          ++preds[k];
+        }
+    }
+}
+
+// Accounts for the runs in the order of the invalid elements (the no-progress budget, the
+// report's counts, the reasons), emitting their log lines; finds where the stage stops.
+struct Ledger {
+  StageBudget SB;
+  UntangleReport& rep;
+  std::vector<std::vector<std::uint8_t>>& why;
+  Why stopped = none;
+  // false: the stage stops at this element (it and the later ones are not kept)
+  bool account(const ElemRef& bad, const ElementRun& run) {
+    if (run.kind == ElementRun::already_valid) return true;
+    if (run.kind == ElementRun::in_failed_patch) {
+      ++rep.skipped;
+      why[bad.block][bad.index] = failed_patch;
+      return true;
+    }
+    if (SB.exhausted()) {  // no progress: stop (checked between elements)
+      why[bad.block][bad.index] = stage_budget;
+      stopped = stage_budget;
+      return false;
+    }
+    SB.total += run.work;
+    SB.stage_used += run.work;
+    rep.attempts += run.attempts;
+    rep.early_exits += run.early_exits;
+    rep.stuck += run.stuck;
+    rep.max_element_work = std::max(rep.max_element_work, run.work);
+    if (run.repaired) {
+      rep.nodes_moved += run.nodes_moved;
+      rep.surface_nodes_moved += run.surface_nodes_moved;
+      rep.max_move = std::max(rep.max_move, run.max_move);
+      ++rep.repaired;
+      SB.repair_work += run.work;
+      SB.stage_used = 0;  // progress: the no-progress budget starts again
+      ++rep.repaired_at_ring[run.ring - 1];
+      rep.repaired_sliding += run.sliding;
+      return true;
+    }
+    why[bad.block][bad.index] = run.why;
+    if (run.why == time_limit) {
+      stopped = time_limit;
+      return false;
+    }
+    if (run.why == budget) ++rep.budget_exhausted;
+    return true;
+  }
+};
+
+// Runs repair_element for every invalid element, each after the earlier ones whose largest
+// patches share a node with its own (conflicts), in parallel otherwise; accounts for them in
+// order as they complete (Ledger), skips the ones after a stop and undoes those that ran.
+void repair_all(State& S, const std::vector<ElemRef>& invalid, Ledger& L, const std::function<void(const std::string&)>& log,
+                const std::function<void(std::size_t, std::size_t)>& visited) {
+  const std::size_t n = invalid.size();
+  std::vector<std::vector<std::uint32_t>> succ;
+  std::vector<int> npred;
+  conflicts(S, invalid, succ, npred);
+  std::vector<std::atomic<int>> pending(n);
+  for (std::size_t k = 0; k < n; ++k) pending[k].store(npred[k]);
+  std::vector<ElementRun> runs(n);
+  std::vector<char> finished(n, 0);
+  std::mutex mu;
+  std::size_t frontier = 0;
+  std::atomic<std::size_t> stop_at{n};
+  auto advance = [&](std::size_t k) {
+    std::lock_guard<std::mutex> lock(mu);
+    finished[k] = 1;
+    while (frontier < n && finished[frontier] && stop_at.load() == n) {
+      const bool go = L.account(invalid[frontier], runs[frontier]);
+      if (go || L.stopped == time_limit)
+        if (log)
+          for (const auto& l : runs[frontier].log) log(l);
+      if (!go) stop_at.store(frontier);
+      ++frontier;
+      visited(frontier, L.rep.repaired);
+    }
+  };
+  tbb::task_group tg;
+  std::function<void(std::size_t)> launch = [&](std::size_t k) {
+    tg.run([&, k] {
+      if (k < stop_at.load()) runs[k] = repair_element(S, invalid[k]);
+      advance(k);
+      for (std::uint32_t s : succ[k])
+        if (pending[s].fetch_sub(1) == 1) launch(s);
+    });
+  };
+  S.arena.execute([&] {
+    for (std::size_t k = 0; k < n; ++k)
+      if (npred[k] == 0) launch(k);
+    tg.wait();
+  });
+  // the stage stopped at stop_at: what ran after it is undone, the latest first
+  for (std::size_t k = n; k-- > stop_at.load();) undo(S, runs[k]);
+}
+
+// The report's count of the elements still invalid, with reasons, and the first max_listed.
+void list_unrepaired(const State& S, const std::vector<std::vector<std::uint8_t>>& why, Why stopped, UntangleReport& rep) {
+  const Mesh& m = S.m;
   std::uint64_t running = 0;
   for (std::uint32_t bi = 0; bi < m.blocks.size(); ++bi) {
     const auto& b = m.blocks[bi];
-    for (std::uint32_t e = 0; e < valid[bi].size(); ++e)
-      if (!valid[bi][e]) {
+    for (std::uint32_t e = 0; e < S.valid[bi].size(); ++e)
+      if (!S.valid[bi][e]) {
         ++rep.invalid_after;
         // not reached: the no-progress budget or the time limit stopped the loop before it
         const Why w = why[bi][e] != none ? Why(why[bi][e]) : stopped != none ? stopped : not_repaired;
         ++rep.unrepaired_by_reason[why_name[w]];
-        if (int(rep.unrepaired.size()) >= opt.max_listed) continue;
+        if (int(rep.unrepaired.size()) >= S.opt.max_listed) continue;
         Unrepaired u;
         u.tag = b.tags.empty() ? running + e + 1 : b.tags[e];
         u.reason = why_name[w];
@@ -921,6 +1133,70 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
       }
     running += b.size();
   }
+}
+
+}  // namespace
+
+UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const std::function<void(const std::string&)>& log,
+                        const cad::Shape* shape, const std::function<void(const UntangleProgress&)>& progress) {
+  const auto t0 = std::chrono::steady_clock::now();
+  tbb::task_arena arena(threads > 0 ? threads : tbb::task_arena::automatic);
+  UntangleReport rep;
+  rep.repaired_at_ring.assign(std::max(1, opt.max_rings), 0);
+  const Topology topo = build_topology(m, opt, shape);
+  if (!topo.volume) {
+    rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    return rep;
+  }
+  State S(m, opt, shape, topo, arena);
+  S.t0 = t0;
+  S.logging = bool(log);
+  std::vector<ElemRef> invalid;
+  {
+    const auto quality = model::mesh_quality(m, threads);
+    S.valid.resize(m.blocks.size());
+    for (std::uint32_t bi = 0; bi < m.blocks.size(); ++bi) {
+      S.valid[bi].assign(quality[bi].size(), 1);
+      for (std::uint32_t e = 0; e < quality[bi].size(); ++e)
+        if (!quality[bi][e].valid) {
+          S.valid[bi][e] = 0;
+          invalid.push_back({bi, e});
+        }
+    }
+  }
+  rep.invalid_before = invalid.size();
+  S.hopeless.resize(m.blocks.size());
+  std::vector<std::vector<std::uint8_t>> why(m.blocks.size());
+  for (std::uint32_t bi = 0; bi < m.blocks.size(); ++bi) {
+    S.hopeless[bi].assign(S.valid[bi].size(), 0);
+    why[bi].assign(S.valid[bi].size(), none);
+  }
+  Ledger L{StageBudget{}, rep, why};
+  L.SB.stage_limit = opt.stage_budget;
+  L.SB.element_limit = opt.element_budget;
+  // progress: the elements accounted for so far and the repairs among them, from any thread
+  std::mutex progress_mutex;
+  std::atomic<std::size_t> visited{0}, repaired{0};
+  auto report_progress = [&] {
+    if (progress)
+      progress({visited.load(), invalid.size(), repaired.load(), std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count()});
+  };
+  S.tick = [&] {
+    std::unique_lock<std::mutex> lock(progress_mutex, std::try_to_lock);
+    if (lock.owns_lock()) report_progress();
+  };
+  report_progress();
+  repair_all(S, invalid, L, log, [&](std::size_t n, std::size_t r) {
+    visited.store(n);
+    repaired.store(r);
+    std::lock_guard<std::mutex> lock(progress_mutex);
+    report_progress();
+  });
+  rep.work = L.SB.total;
+  rep.repair_work = L.SB.repair_work;
+  rep.stage_budget_exhausted = L.stopped == stage_budget;
+  rep.time_limit_fired = L.stopped == time_limit;
+  list_unrepaired(S, why, L.stopped, rep);
   rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return rep;
 }
