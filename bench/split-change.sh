@@ -24,7 +24,7 @@ change=$(run split_only --set split.layers=12)
 load1=$(uptime | sed 's/.*load average: //')
 read -r _ cw cc <<< "$cold"
 read -r _ sw sc <<< "$change"
-echo "# $(date -u +%F) $(git rev-parse --short HEAD 2>/dev/null || echo '?'), load before $load0, after $load1"
+echo "# $(date -u +%F) binary $build/meshflow, load before $load0, after $load1"
 echo "| run | wall s | CPU s (user+sys) |"
 echo "|---|---|---|"
 echo "| cold: \`meshflow run $wf\` | $cw | $cc |"
