@@ -6,6 +6,7 @@
 #include "engine/registry.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <cerrno>
 #include <chrono>
 #include <cmath>
@@ -18,6 +19,7 @@
 #include <iostream>
 #include <functional>
 #include <map>
+#include <mutex>
 #include <set>
 #include <poll.h>
 #include <sstream>
@@ -299,9 +301,45 @@ void copy_object_out(const Artifact& art, const fs::path& tmp) {
                              "') to " + tmp.string() + " gave different bytes: the object changed while it was copied. Run again.");
 }
 
+// One file of out/ to write: its name there and the function producing it at a path.
+struct OutputJob {
+  std::string file;
+  std::string format;  // "" for a copy of the object
+  std::function<void(const fs::path&)> produce;
+};
+
+// Writes the jobs' files, at most `parallel` at once (each format writer reads the artifact and
+// writes its own file). Two writers of one format never run at once: a format's library (CGNS's
+// ADF) may keep global state. Every job runs to its end; the first failure in job order is
+// rethrown after all have finished, so no writer is left running.
+void write_output_files(const fs::path& out_dir, const std::vector<OutputJob>& jobs, unsigned parallel) {
+  std::vector<std::exception_ptr> errors(jobs.size());
+  std::map<std::string, std::mutex> format_lock;
+  for (auto& j : jobs) format_lock[j.format];
+  std::atomic<std::size_t> next{0};
+  auto worker = [&] {
+    for (std::size_t i; (i = next++) < jobs.size();) {
+      try {
+        std::lock_guard<std::mutex> lock(format_lock.at(jobs[i].format));
+        write_output_file(out_dir / jobs[i].file, jobs[i].produce);
+      } catch (...) {
+        errors[i] = std::current_exception();
+      }
+    }
+  };
+  std::vector<std::thread> pool;
+  for (unsigned t = 1; t < std::min<std::size_t>(parallel, jobs.size()); ++t) pool.emplace_back(worker);
+  worker();
+  for (auto& t : pool) t.join();
+  for (auto& e : errors)
+    if (e) std::rethrow_exception(e);
+}
+
 // Writes the workflow's outputs into out_dir. An output whose artifact digest and formats are
 // those of the previous report.json there, with all its files present, is not written again
-// (exporting a large mesh would dominate a no-change re-run).
+// (exporting a large mesh would dominate a no-change re-run). The files to write (every format
+// of every changed output) are written in parallel, up to the number of cores: each format
+// writer is serial, and a split-only change rewrites four formats of one mesh.
 void materialise(const Workflow& wf, const RunResult& rr, const Cache& cache, const fs::path& out_dir, json& report_outputs) {
   json previous;
   try {
@@ -309,6 +347,8 @@ void materialise(const Workflow& wf, const RunResult& rr, const Cache& cache, co
   } catch (...) {
     previous = json::object();
   }
+  std::vector<OutputJob> jobs;
+  json written = json::object();  // entries of the outputs written now: in the report once all are
   for (auto& od : wf.outputs) {
     const Artifact* art = output_artifact(wf, rr, od);
     if (!art) continue;
@@ -327,11 +367,11 @@ void materialise(const Workflow& wf, const RunResult& rr, const Cache& cache, co
     }
     verify_for_output(cache, *art);
     json files = json::array();
-    auto write_one = [&](const std::string& ext, const std::function<void(const fs::path&)>& produce) {
-      write_output_file(out_dir / (od.name + ext), produce);
+    auto write_one = [&](const std::string& ext, const std::string& format, std::function<void(const fs::path&)> produce) {
+      jobs.push_back({od.name + ext, format, std::move(produce)});
       files.push_back(od.name + ext);
     };
-    if (od.formats.empty()) write_one(type ? type->extension : "", [&](const fs::path& tmp) { copy_object_out(*art, tmp); });
+    if (od.formats.empty()) write_one(type ? type->extension : "", "", [art](const fs::path& tmp) { copy_object_out(*art, tmp); });
     for (auto& f : od.formats) {
       if (!type || !type->formats.count(f)) {
         std::string known;
@@ -340,12 +380,14 @@ void materialise(const Workflow& wf, const RunResult& rr, const Cache& cache, co
         throw WorkflowError(wf.file.string() + ": output '" + od.name + "': artifact type '" + art->type +
                             "' has no format '" + f + "'" + (known.empty() ? "" : " (formats: " + known + ")") + ".");
       }
-      auto& fmtd = type->formats.at(f);
-      write_one(fmtd.extension, [&](const fs::path& tmp) { fmtd.write(art->path, tmp); });
+      const ArtifactFormat* fmtd = &type->formats.at(f);
+      write_one(fmtd->extension, f, [fmtd, art](const fs::path& tmp) { fmtd->write(art->path, tmp); });
     }
-    report_outputs[od.name] = {{"from", od.from},        {"artifact", art->name}, {"type", art->type},
-                               {"digest", art->digest}, {"formats", od.formats}, {"files", files}};
+    written[od.name] = {{"from", od.from},        {"artifact", art->name}, {"type", art->type},
+                        {"digest", art->digest}, {"formats", od.formats}, {"files", files}};
   }
+  write_output_files(out_dir, jobs, std::max(1u, std::thread::hardware_concurrency()));
+  for (auto& [name, entry] : written.items()) report_outputs[name] = entry;
 }
 
 // When a stage fails on a nearly full disk, say so: the stage's own message may only be a
