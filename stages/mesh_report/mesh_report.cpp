@@ -128,7 +128,7 @@ std::string listed_html(const json& stats, const std::vector<Listed>& listed) {
 // Pictures
 
 std::string figure(const Svg& svg, const std::string& title, const std::string& caption) {
-  return "<figure>" + svg.str(title) + "<figcaption>" + caption + "</figcaption></figure>\n";
+  return "<figure style=\"width:" + std::to_string(int(svg.width())) + "px\">" + svg.str(title) + "<figcaption>" + caption + "</figcaption></figure>\n";
 }
 
 // The surface's extent: min and max of its nodes along each axis.
