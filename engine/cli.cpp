@@ -7,6 +7,7 @@
 #include "engine/golden.hpp"
 #include "engine/matrix.hpp"
 #include "engine/registry.hpp"
+#include "engine/run_report.hpp"
 #include "engine/runner.hpp"
 #include "engine/schema.hpp"
 #include "engine/workflow.hpp"
@@ -250,6 +251,11 @@ int cli_main(int argc, char** argv) {
   gc->add_flag("--verify", verify, "re-hash every object and check every action entry");
   gc->add_flag("--repair", repair, "with --verify: remove what is corrupt, and the entries computed from it");
   gc->add_option("--out", out_dir, "output folder whose stale temp files to remove (default: out/<workflow name>/)");
+  auto* report = app.add_subcommand("report", "write OUT_DIR/report.html again from what a run wrote there (report.json, the cache)");
+  std::string report_dir;
+  report->add_option("out_dir", report_dir, "a run's output folder (out/<workflow name>/)")->required();
+  report->add_option("--cache", cache_dir, "the cache holding the run's artifacts (default: the one report.json names)");
+  report->add_option("--threads", threads, "threads for the pictures (default: number of cores)");
   auto* kinds = app.add_subcommand("kinds", "list stage kinds with their parameters, and artifact types with formats");
   std::string kind_name;
   kinds->add_option("kind", kind_name, "only this kind");
@@ -264,6 +270,8 @@ int cli_main(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     return app.exit(e) == 0 ? 0 : kBadInput;
   }
+
+  if (report->parsed()) return rebuild_report(report_dir, cache_dir, threads > 0 ? threads : 0);
 
   if (kinds->parsed()) {
     if (editor_schema) {

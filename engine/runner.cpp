@@ -4,6 +4,7 @@
 #include "engine/fsutil.hpp"
 #include "engine/hash.hpp"
 #include "engine/registry.hpp"
+#include "engine/run_report.hpp"
 
 #include <algorithm>
 #include <atomic>
@@ -472,6 +473,33 @@ bool entry_intact(const Cache& cache, const std::string& stage, const json& entr
   return ok;
 }
 
+// out_dir/report.html from the report and the artifacts of this run (or, with `report: false`,
+// no page: an older one is removed rather than left to describe another run).
+void write_report_page(const Workflow& wf, RunResult& rr, int threads, std::ostream& out, std::ostream& err) {
+  const fs::path page = rr.out_dir / "report.html";
+  if (!wf.report) {
+    std::error_code ec;
+    fs::remove(page, ec);
+    return;
+  }
+  std::map<std::string, fs::path> by_digest;
+  for (auto& r : rr.stages)
+    for (auto& a : r.outputs) by_digest[a.digest] = a.path;
+  ArtifactLocator locate = [&](const std::string& digest) {
+    auto it = by_digest.find(digest);
+    return it == by_digest.end() ? fs::path() : it->second;
+  };
+  try {
+    const auto t = Clock::now();
+    write_report_html(rr.out_dir, rr.report, locate, threads);
+    out << "report: " << page.string() << " (" << fmt(std::chrono::duration<double>(Clock::now() - t).count(), 2) << " s)\n";
+  } catch (const std::exception& e) {
+    rr.ok = false;
+    rr.failed = true;
+    err << "error: cannot write " << page.string() << ": " << e.what() << "\n";
+  }
+}
+
 }  // namespace
 
 RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
@@ -789,6 +817,10 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
     if (!r.error.empty()) s["error"] = r.error;
     if (!r.computed.empty()) s["computed"] = r.computed;
     if (remote) s["remote"] = r.remote;
+    if (!r.outputs.empty()) {  // what report.html (and `meshflow report`) looks up by digest
+      s["outputs"] = json::array();
+      for (auto& a : r.outputs) s["outputs"].push_back({{"name", a.name}, {"type", a.type}, {"digest", a.digest}});
+    }
     stages.push_back(s);
     if (r.status == "invalid")
       for (auto p : problems_of(r.stats)) {
@@ -798,6 +830,7 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
   }
   rr.report = {{"workflow", wf.name}, {"file", wf.file.string()}, {"ok", rr.ok},          {"invalid", rr.invalid},
                {"problems", all_problems}, {"stages", stages}, {"seconds", secs(t0)}, {"outputs", json::object()}};
+  rr.report["cache"] = cache.root().string();
   if (rr.invalid && opt.allow_invalid) rr.report["invalid_accepted"] = true;
   if (!quarantined.empty()) rr.report["quarantined"] = quarantined;
   if (remote) rr.report["remote_cache"] = remote->report();
@@ -845,6 +878,7 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
       rr.failed = true;
       err << "error: cannot write " << (rr.out_dir / "report.json").string() << ": " << e.what() << "\n";
     }
+    write_report_page(wf, rr, threads, out, err);
   }
   if (remote)
     out << "remote cache " << opt.remote.url << ": " << rr.report["remote_cache"]["served"] << " stage(s) served, "

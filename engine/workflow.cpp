@@ -533,6 +533,8 @@ Workflow load_workflow_text(const std::string& text, const fs::path& file, const
       wf.outputs.push_back(std::move(od));
     }
 
+  wf.report = doc.value("report", true);
+
   if (doc.contains("golden")) {
     GoldenDecl g;
     const json& gj = doc["golden"];

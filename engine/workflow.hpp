@@ -9,6 +9,7 @@
 //     NAME: {from: STAGE, artifact: ARTIFACT (default: the stage's first), formats: [FMT...]}
 //   golden: DIR | {path: DIR, tolerance: {rel, abs}, fields: {"a.b.c": {rel, abs}}}
 //   matrix: {STAGE.PARAM: [VALUE...], ...}   (variants: engine/matrix.hpp)
+//   report: false                            (no out/<name>/report.html; engine/run_report.hpp)
 // schemas/workflow.schema.json is the truth for the top level; schemas/<kind>.schema.json
 // for each stage's `with`. Relative paths are relative to the workflow file's folder.
 #pragma once
@@ -67,6 +68,7 @@ struct Workflow {
   std::vector<StageDecl> stages;  // in deterministic topological order (file order for ties)
   std::vector<OutputDecl> outputs;
   std::optional<GoldenDecl> golden;
+  bool report = true;  // write out/<name>/report.html after a run
   // `matrix:` in file order: "STAGE.PARAM" and its values (each as JSON text, which is YAML and
   // goes through the same path as --set). Empty without a matrix. engine/matrix.hpp expands it.
   std::vector<std::pair<std::string, std::vector<std::string>>> matrix;

@@ -79,7 +79,7 @@ TEST_CASE("outputs re-written over themselves leave no temporary file in the out
   std::sort(names.begin(), names.end());
   std::string all;
   for (auto& n : names) all += n + " ";
-  CHECK(all == "final.upper.txt raw.txt report.json ");
+  CHECK(all == "final.upper.txt raw.txt report.html report.json ");
   CHECK(read_text(f.out / "raw.txt") == "ababab-d");
 }
 

@@ -37,11 +37,13 @@ run() {
   return $code
 }
 out() { echo "$work/$1/out/naca-wingtip"; }
-# same_outputs A B: every output file of A's run is byte-identical in B's (report.json aside).
+# same_outputs A B: every output file of A's run is byte-identical in B's (report.json and report.html aside).
 same_outputs() {
   local n=0
   for f in "$(out "$1")"/*; do
+    # report.json and report.html hold timings and each stage's status (ran, cached, remote)
     [ "$(basename "$f")" = report.json ] && continue
+    [ "$(basename "$f")" = report.html ] && continue
     cmp -s "$f" "$(out "$2")/$(basename "$f")" || fail "$2: $(basename "$f") differs from $1's"
     n=$((n + 1))
   done
