@@ -15,11 +15,12 @@ The runs, small enough for `make test` and covering the 14 stage kinds and the r
   matrix     the demo with a matrix of two split variants: a report per variant
   step       the demo's healed shape written as STEP, imported by a `step` stage and healed
   wing_body  the parametric wing-body's geometry, healed
+  translation the parametric wing with periodic box sides: periodic_match finds a translation
   blade      a synthetic blade row (scripts/synthetic-blade.py): blade_sector to periodic_match
 Every report must validate against the schema (additionalProperties false where the fields are
 known: a field the schema does not document fails), and every field the schema documents must
 appear in at least one report (so the schema does not keep fields that are gone), but for the
-few listed in NOT_EXERCISED with the reason no cheap run writes them.
+few listed in NOT_EXERCISED with the condition that writes them, which no small run meets.
 """
 import hashlib
 import json
@@ -38,11 +39,41 @@ SMALL = ["--set", "geometry.farfield_chords=3", "--set", "balance.min_size=0.015
          "--set", "curve.order=2", "-j", "2", "--threads", "2"]
 DEMO = os.path.join(ROOT, "workflows", "naca_wingtip.yaml")
 
-# Documented fields no run of this test writes, each with why (paths as field_paths() names them).
+# Documented fields no run of this test writes: each written only in a condition no small run
+# meets, named here (a key names the field and everything under it).
 NOT_EXERCISED = {
-    # written only when writing the outputs fails after the stages ran (disk full, out/ removed)
-    "error",
+    "error": "writing the outputs failed after the stages ran (disk full, out/ removed meanwhile)",
+    "#contract.reference_volume_unreliable": "OpenCASCADE's two volume integrations of the CAD disagree",
+    "#problem_place.why": "a degenerate element (tests/contract makes them)",
+    "#problem_place.ratio": "a degenerate element (tests/contract)",
+    "#problem_place.face_of": "a non-conforming or untagged face (tests/contract)",
+    "#problem_place.edge": "a hole in the boundary (tests/contract)",
+    "#problem_place.cad_face": "a CAD face without boundary elements (tests/contract)",
+    "#problem_place.group": "a group whose area is off (tests/contract)",
+    "#problem_place.mesh_area": "a CAD face or group whose area is off (tests/contract)",
+    "#problem_place.cad_area": "a CAD face or group whose area is off (tests/contract)",
+    "#stats_blade_sector.sections_resampled_from": "sections with different point counts",
+    "#stats_blade_sector.surface_notes": "a passage check that notes something (a thin passage)",
+    "#stats_heal.fixes.solids_fused": "fluid: box around a body of several solids",
+    "#stats_heal.fixes.symmetry_plane": "fluid: box with symmetry_plane (a half model given as a body)",
+    "#stats_heal.fixes.unify_rejected": "same-domain unification breaking the solid",
+    "#stats_heal.self_intersection_check_aborted": "OpenCASCADE's self-intersection checker failing",
+    "#stats_medial.uv_polygons": "faces whose parameter-plane outline needs fixing (some corpus STEP files)",
+    "#stats_optimise.optimise.untangle.unrepaired.listed[]": "elements the untangling cannot repair",
+    "#stats_shell.junction_chains_averaged": "a junction chain ending on a third wall face (DLR-F6's pylon)",
+    "#stats_shell.maximin_vertices": "a wall vertex given the maximin direction",
+    "#stats_shell.not_honoured.limited_by_face_width": "wall faces narrower than the layer",
+    "#stats_shell.not_honoured.thinned_for_crossings": "a shell surface crossing itself before thinning",
+    "#stats_shell.resampled_faces": "faces whose shell samples are taken from the field at the points",
+    "#stats_shell.self_intersection_at": "a shell surface left crossing itself",
+    "#stats_shell.self_intersection_kinds.*": "a shell surface left crossing itself",
+    "#stats_shell.unsampled": "a wall face whose shell surface cannot be sampled",
 }
+
+
+def under(path, key):
+    return path == key or path.startswith(key + ".") or path.startswith(key + "[")
+
 
 failures = []
 
@@ -142,6 +173,23 @@ outputs:
   shape: {from: heal}
 """)
     reports += run(work, "wing_body", ["run", os.path.join(work, "wing_body.yaml"), "--cache", os.path.join(work, "cache")], 0)
+
+    # the demo's wing with its box sides y = -3 / y = 3 periodic: a translation (no divisions to check)
+    write(os.path.join(work, "translation.yaml"), """meshflow: 1
+name: periodic-translation
+stages:
+  geometry:
+    kind: naca_wing
+    with:
+      farfield_chords: 3
+      tag_overrides:
+        - {tag: periodic_lo, plane: {point: [0, -3, 0], normal: [0, 1, 0]}}
+        - {tag: periodic_hi, plane: {point: [0, 3, 0], normal: [0, 1, 0]}}
+  periodic_match: {kind: periodic_match, needs: [geometry]}
+outputs:
+  periodic: {from: periodic_match}
+""")
+    reports += run(work, "translation", ["run", os.path.join(work, "translation.yaml"), "--cache", os.path.join(work, "cache")], 0)
 
     csv = os.path.join(work, "row.csv")
     subprocess.run(["/usr/bin/python3", os.path.join(ROOT, "scripts", "synthetic-blade.py"), csv, "--units-comment", "cm",
@@ -243,11 +291,13 @@ def main():
         field_paths(schema, schema, "", documented, set())
         for _, r in reports:
             seen_paths(r, schema, schema, "", seen)
-        never = sorted(documented - seen - NOT_EXERCISED)
+        never = sorted(p for p in documented - seen if not any(under(p, k) for k in NOT_EXERCISED))
         check(not never, f"every documented field appears in some report ({len(documented)} documented): never seen:"
               + "".join("\n    " + p for p in never))
-        stale = sorted(NOT_EXERCISED & seen)
-        check(not stale, f"NOT_EXERCISED lists only fields no run writes: {stale}")
+        stale = sorted(k for k in NOT_EXERCISED if any(under(p, k) for p in seen))
+        check(not stale, f"NOT_EXERCISED lists only fields no run writes (remove the others from it): {stale}")
+        unknown = sorted(k for k in NOT_EXERCISED if not any(under(p, k) for p in documented))
+        check(not unknown, f"NOT_EXERCISED names documented fields only: {unknown}")
     finally:
         if not KEEP:
             shutil.rmtree(work, ignore_errors=True)
