@@ -22,7 +22,6 @@ Vec3 sub(Vec3 a, Vec3 b) { return {a.x - b.x, a.y - b.y, a.z - b.z}; }
 Vec3 add(Vec3 a, Vec3 b, double s = 1) { return {a.x + s * b.x, a.y + s * b.y, a.z + s * b.z}; }
 Vec3 mul(Vec3 a, double s) { return {a.x * s, a.y * s, a.z * s}; }
 double norm(Vec3 a) { return std::sqrt(a.x * a.x + a.y * a.y + a.z * a.z); }
-double dot(Vec3 a, Vec3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
 
 struct Wing {
   TestContext ctx{"naca_wing", {{"span", 1.5}}};
