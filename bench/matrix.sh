@@ -123,6 +123,23 @@ for c in "abcd":
 P()
 P("Each run's walls in order, s: " + "; ".join(f"{c}: " + ", ".join(f"{r[1]:.1f}" for r in runs[c]) for c in "abcd") + ".")
 P()
+def rel(c):
+    x = med([r[1] for r in runs[c]]) / a_med
+    return f"{100 * (1 - x):.0f} % faster than a" if x < 1 else f"{100 * (x - 1):.0f} % slower than a"
+P(f"Reading it (medians): b is {rel('b')}, c {rel('c')}, d {rel('d')}. The demo's DAG is a chain (each stage")
+P("needs the one before) and `meshflow run` runs a matrix's variants one after another, so `-j 2` never has two")
+P("stages ready at once; what it changes is the thread budget: each stage gets `--threads / -j` threads,")
+P("fixed for the run (`stage_threads` in engine/runner.cpp), so under b every stage runs on 1 thread even")
+P("when it runs alone, whereas a gives it both cores (curve, optimise, split and the output writers are")
+P("multithreaded). Snakemake sees the 17 distinct stages of all variants as one DAG: after `tet`, the two")
+P("`curve` orders, then the two `optimise`, then the 6 `split` and the 6 output rules are independent, and d")
+P("runs them two at a time on 1 thread each; c (rules at `--threads 2` on `--cores 2`) runs one rule at a")
+nlook = {c: sum(1 for _ in open(os.path.join(work, f"{c}-1.rows"))) for c in "ad"}
+P("time, i.e. sequentially. Both pay for 23 meshflow processes, each loading the workflow and looking its")
+P(f"upstream stages up in the cache ({nlook['d']} lookups against {nlook['a']}). On 2 cores of a shared machine the load moves")
+P("the walls between repetitions (the per-run walls above): a difference within that spread is noise;")
+P("CPU time (user + sys) moves less with the load than wall time.")
+P()
 
 # cache shares, from the first repetition of each configuration
 P("### Stage instances computed and served from the cache (repetition 1 of each)")
