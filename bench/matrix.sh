@@ -139,6 +139,20 @@ P("time, i.e. sequentially. Both pay for 23 meshflow processes, each loading the
 P(f"upstream stages up in the cache ({nlook['d']} lookups against {nlook['a']}). On 2 cores of a shared machine the load moves")
 P("the walls between repetitions (the per-run walls above): a difference within that spread is noise;")
 P("CPU time (user + sys) moves less with the load than wall time.")
+loads = [r[4] for c in "abcd" for r in runs[c]]
+cpu_a = med([r[2] for r in runs["a"]])
+over = {c: med([r[2] for r in runs[c]]) - cpu_a for c in "bcd"}
+P(f"The 1-minute load at the runs' starts was {min(loads):.1f} to {max(loads):.1f} (median {med(loads):.1f}) on {ncpu} cores,")
+P("about 2 of it this script's previous run (each keeps ~2 threads busy), the rest other people's work.")
+if med(loads) - 2 >= int(ncpu):
+    P("Others kept both cores busy throughout: neither the second thread a gives each stage nor d's two")
+    P("rules at once found a free core to use, and the walls rank the configurations by the noise.")
+elif med(loads) - 2 >= 0.5:
+    P(f"Others took about {med(loads) - 2:.1f} of the cores: part of what a second thread or a second rule could gain was not there to take.")
+P(f"What holds at any load is the CPU: against a, b spends {over['b']:+.1f} s, c {over['c']:+.1f} s "
+  f"({100 * over['c'] / cpu_a:+.0f} %), d {over['d']:+.1f} s ({100 * over['d'] / cpu_a:+.0f} %) (medians): Snakemake's")
+P("price is its own start-up and its 23 meshflow processes (start-up, workflow load, cache look-ups); on")
+P("2 cores it can repay that only with a second core free while the variants' stages fan out.")
 P()
 
 # cache shares, from the first repetition of each configuration
