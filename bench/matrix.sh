@@ -153,6 +153,12 @@ P(f"What holds at any load is the CPU: against a, b spends {over['b']:+.1f} s, c
   f"({100 * over['c'] / cpu_a:+.0f} %), d {over['d']:+.1f} s ({100 * over['d'] / cpu_a:+.0f} %) (medians): Snakemake's")
 P("price is its own start-up and its 23 meshflow processes (start-up, workflow load, cache look-ups); on")
 P("2 cores it can repay that only with a second core free while the variants' stages fan out.")
+busy = {c: med([r[2] for r in runs[c]]) / med([r[1] for r in runs[c]]) for c in "abcd"}
+P("Cores in use on average (median CPU / median wall): " + ", ".join(f"{c} {busy[c]:.2f}" for c in "abcd") + ".")
+if busy["a"] < 1.5:
+    P(f"The stages' own threads keep a's second core busy only part of the time ({busy['a']:.2f} cores: much of each")
+    P("stage is serial at these sizes), which is why b's 1 thread per stage costs little or nothing against")
+    P("a's 2, and why running two variants' stages side by side (d) is what fills the second core.")
 P()
 
 # cache shares, from the first repetition of each configuration
