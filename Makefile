@@ -3,7 +3,7 @@ BUILD ?= build
 JOBS ?= $(shell nproc)
 CMAKE_FLAGS ?=
 
-.PHONY: all deps build demo test test-cluster bench corpus pictures test-asan fuzz clean
+.PHONY: all deps build demo test test-cluster bench bench-matrix corpus pictures test-asan fuzz clean
 
 all: build
 
@@ -30,6 +30,12 @@ test-cluster: build
 bench: build
 	cmake --build $(BUILD) -j $(JOBS) --target benchmarks
 	bench/run.sh $(BUILD)
+
+# A 6-variant matrix of the demo from a cold cache: meshflow run -j 1, -j 2, Snakemake --cores 2
+# (bench/matrix.sh, REPS=3 repetitions: ~15-25 min on 2 cores), then RESULTS.md reassembled
+bench-matrix: build
+	bench/matrix.sh $(BUILD)
+	bench/run.sh --assemble
 
 # Every corpus file (../shared/data/corpus) through `meshflow init` and `meshflow run`, no hand
 # edits: which end with a valid mesh, in bench/results/corpus.md (long: tens of minutes)
