@@ -336,11 +336,57 @@ void write_output_files(const fs::path& out_dir, const std::vector<OutputJob>& j
     if (e) std::rethrow_exception(e);
 }
 
+// The other artifacts of the stage that produced `art` (its companions, artifact_type.hpp).
+std::vector<Artifact> companions_of(const RunResult& rr, const Artifact& art) {
+  std::vector<Artifact> v;
+  for (auto& s : rr.stages)
+    if (s.name == art.stage)
+      for (auto& a : s.outputs)
+        if (a.name != art.name) v.push_back(a);
+  return v;
+}
+
+// An output's artifact read once (ArtifactType::load) for all its formats that write from it:
+// the first writer to need it loads it, the others wait for it; a failure is rethrown to each
+// of them. The companions are verified on read (as the artifact is) when it is made, in the
+// runner's thread (the cache's record of verified objects is not shared between threads).
+class SharedLoad {
+ public:
+  SharedLoad(const Cache& cache, const ArtifactType* type, const Artifact* art, std::vector<Artifact> companions)
+      : type_(type), art_(art), companions_(std::move(companions)) {
+    for (auto& c : companions_) verify_for_output(cache, c);
+  }
+  const void* get() {
+    std::lock_guard<std::mutex> lock(m_);
+    if (!done_) {
+      done_ = true;
+      try {
+        loaded_ = type_->load(art_->path, companions_);
+      } catch (...) {
+        error_ = std::current_exception();
+      }
+    }
+    if (error_) std::rethrow_exception(error_);
+    return loaded_.get();
+  }
+
+ private:
+  const ArtifactType* type_;
+  const Artifact* art_;
+  std::vector<Artifact> companions_;
+  std::mutex m_;
+  bool done_ = false;
+  std::shared_ptr<const void> loaded_;
+  std::exception_ptr error_;
+};
+
 // Writes the workflow's outputs into out_dir. An output whose artifact digest and formats are
 // those of the previous report.json there, with all its files present, is not written again
 // (exporting a large mesh would dominate a no-change re-run). The files to write (every format
 // of every changed output) are written in parallel, up to the number of cores: each format
-// writer is serial, and a split-only change rewrites four formats of one mesh.
+// writer is serial, and a split-only change rewrites four formats of one mesh. The formats of
+// a type with `load` that write from it share one reading of the artifact (and its companions:
+// a mesh's stored quality, so the VTU writer does not recompute it).
 void materialise(const Workflow& wf, const RunResult& rr, const Cache& cache, const fs::path& out_dir, json& report_outputs) {
   json previous;
   try {
@@ -368,6 +414,7 @@ void materialise(const Workflow& wf, const RunResult& rr, const Cache& cache, co
     }
     verify_for_output(cache, *art);
     json files = json::array();
+    std::shared_ptr<SharedLoad> loader;  // made by the first format that writes from it
     auto write_one = [&](const std::string& ext, const std::string& format, std::function<void(const fs::path&)> produce) {
       jobs.push_back({od.name + ext, format, std::move(produce)});
       files.push_back(od.name + ext);
@@ -382,7 +429,12 @@ void materialise(const Workflow& wf, const RunResult& rr, const Cache& cache, co
                             "' has no format '" + f + "'" + (known.empty() ? "" : " (formats: " + known + ")") + ".");
       }
       const ArtifactFormat* fmtd = &type->formats.at(f);
-      write_one(fmtd->extension, f, [fmtd, art](const fs::path& tmp) { fmtd->write(art->path, tmp); });
+      if (type->load && fmtd->write_loaded) {
+        if (!loader) loader = std::make_shared<SharedLoad>(cache, type, art, companions_of(rr, *art));
+        write_one(fmtd->extension, f, [fmtd, loader](const fs::path& tmp) { fmtd->write_loaded(loader->get(), tmp); });
+      } else {
+        write_one(fmtd->extension, f, [fmtd, art](const fs::path& tmp) { fmtd->write(art->path, tmp); });
+      }
     }
     written[od.name] = {{"from", od.from},        {"artifact", art->name}, {"type", art->type},
                         {"digest", art->digest}, {"formats", od.formats}, {"files", files}};

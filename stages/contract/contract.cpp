@@ -481,7 +481,8 @@ struct Checker {
 Result check(const Mesh& m, Extent extent, const CadReference* cad, int threads) {
   Result r;
   r.problems = json::array();
-  const auto q = model::mesh_quality(m, threads);
+  r.quality = model::mesh_quality(m, threads);
+  const auto& q = r.quality;
   const auto topo = model::build_topology(m);
   r.mesh = model::mesh_stats(m, q, topo);
   const int dim = m.dimension();
@@ -528,24 +529,26 @@ CadReference cad_reference(const cad::Shape& shape) {
 }
 
 namespace {
-void publish(StageContext& ctx, Result r, const std::string& hint) {
+model::MeshQuality publish(StageContext& ctx, Result r, const std::string& hint) {
   if (!hint.empty())
     for (auto& p : r.problems)
       if (p["clause"] == "validity") p["hint"] = hint;
   ctx.stats()["mesh"] = std::move(r.mesh);
   ctx.stats()["contract"] = std::move(r.contract);
   ctx.stats()["problems"] = std::move(r.problems);
+  return std::move(r.quality);
 }
 }  // namespace
 
-void record(StageContext& ctx, const Mesh& m, Extent extent, const cad::Shape* shape, const std::string& hint) {
+model::MeshQuality record(StageContext& ctx, const Mesh& m, Extent extent, const cad::Shape* shape, const std::string& hint) {
   CadReference ref;
   if (shape) ref = cad_reference(*shape);
-  publish(ctx, check(m, extent, shape ? &ref : nullptr, ctx.threads()), hint);
+  return publish(ctx, check(m, extent, shape ? &ref : nullptr, ctx.threads()), hint);
 }
 
-void record_against(StageContext& ctx, const Mesh& m, Extent extent, const CadReference& ref, const std::string& hint) {
-  publish(ctx, check(m, extent, &ref, ctx.threads()), hint);
+model::MeshQuality record_against(StageContext& ctx, const Mesh& m, Extent extent, const CadReference& ref,
+                                  const std::string& hint) {
+  return publish(ctx, check(m, extent, &ref, ctx.threads()), hint);
 }
 
 }  // namespace meshflow::contract

@@ -29,6 +29,7 @@
 #pragma once
 
 #include "stages/model/mesh.hpp"
+#include "stages/model/quality.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -73,6 +74,7 @@ struct Result {
   nlohmann::json mesh;      // model::mesh_stats of the mesh
   nlohmann::json contract;  // the measured figures of each clause and the tolerances
   nlohmann::json problems;  // array of {clause, what, count, blocking, where: [...], hint}
+  model::MeshQuality quality;  // model::mesh_quality of the mesh (validity and stats.mesh come from it)
   bool ok() const { return problems.empty(); }
 };
 
@@ -93,11 +95,13 @@ double enclosed_volume(const model::Mesh& m);
 
 // What a mesh-producing stage calls on the mesh it wrote: stats.mesh, stats.contract and
 // stats.problems (the engine reads "problems": see engine/stage.hpp). `hint` is appended to the
-// validity problem: what the user can change at this stage.
-void record(StageContext& ctx, const model::Mesh& m, Extent extent, const cad::Shape* shape,
-            const std::string& hint = {});
+// validity problem: what the user can change at this stage. Returns the per-element quality it
+// computed, which the stage stores beside its mesh (io::write_quality, the "quality" artifact)
+// so that no format writer computes it again.
+model::MeshQuality record(StageContext& ctx, const model::Mesh& m, Extent extent, const cad::Shape* shape,
+                          const std::string& hint = {});
 // The same against a reference given as figures (e.g. only the volume of split's input).
-void record_against(StageContext& ctx, const model::Mesh& m, Extent extent, const CadReference& ref,
-                    const std::string& hint = {});
+model::MeshQuality record_against(StageContext& ctx, const model::Mesh& m, Extent extent, const CadReference& ref,
+                                  const std::string& hint = {});
 
 }  // namespace meshflow::contract

@@ -33,17 +33,18 @@ void run(StageContext& ctx) {
   ctx.progress(0.8, "writing");
   io::write_mesh(out, ctx.output("mesh", "mesh"), io::MeshFormat::MshBinary);
   ctx.progress(0.9, "statistics");
-  contract::record(ctx, out, contract::Extent::Domain, &shape,
+  const auto quality = contract::record(ctx, out, contract::Extent::Domain, &shape,
                    "curving inverted them; optimise (untangle: true) repairs such elements, or a thinner shell / lower order avoids them");
+  io::write_quality(out, quality, ctx.output("quality", "mesh_quality"));
   ctx.stats()["curve"] = rep.to_json();
   ctx.progress(1.0, "done");
 }
 
 StageRegistrar reg({.kind = "curve",
-                    .version = 2,
+                    .version = 3,  // 3: also stores the mesh's per-element quality ("quality")
                     .summary = "order-P mesh on the CAD, bottom-up: CAD curves, CAD surfaces in (u,v), the boundary layer following the curved wall, blended interiors",
                     .needs = {"mesh", "shape"},
-                    .produces = {{"mesh", "mesh"}},
+                    .produces = {{"mesh", "mesh"}, {"quality", "mesh_quality"}},
                     .run = run});
 
 }  // namespace

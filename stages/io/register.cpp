@@ -1,6 +1,7 @@
 // stages/io's registrations with the engine: the "mesh" artifact type (stored as binary MSH
 // 4.1; formats msh (the stored file), msh-ascii, msh-plain and pyfr (solver-ready), vtu, nektar (compressed), nektar-plain, cgns; summary =
-// mesh_stats) and the commands `meshflow quality FILE [--json] [--threads N]` and
+// mesh_stats; load: the mesh read once for all formats, with the quality its stage stored), the
+// "mesh_quality" type and the commands `meshflow quality FILE [--json] [--threads N]` and
 // `meshflow convert IN OUT [--ascii] [--parametric] [--all-elements] [--plain]`.
 #include "engine/artifact_type.hpp"
 #include "engine/command.hpp"
@@ -12,6 +13,8 @@
 #include <cstdio>
 #include <fstream>
 #include <iostream>
+#include <memory>
+#include <optional>
 
 namespace meshflow::io {
 
@@ -151,9 +154,38 @@ int convert_cmd(const std::vector<std::string>& args) {
   }
 }
 
+// The mesh artifact as the runner loads it once for all the formats of an output (ArtifactType::
+// load): the mesh, and the quality its stage stored beside it (the companion of type
+// "mesh_quality") for VTU's cell fields. A quality file that is not this mesh's (its blocks
+// differ: never from a stage that wrote both) is not used: the cell fields are computed then.
+struct LoadedMesh {
+  model::Mesh mesh;
+  std::optional<model::MeshQuality> quality;
+};
+
+std::shared_ptr<const void> load_mesh(const std::filesystem::path& in, const std::vector<Artifact>& companions) {
+  auto l = std::make_shared<LoadedMesh>();
+  l->mesh = read_msh(in);
+  for (auto& c : companions)
+    if (c.type == "mesh_quality") {
+      try {
+        l->quality = read_quality(c.path, l->mesh);
+      } catch (const MeshIOError&) {
+        l->quality.reset();
+      }
+      break;
+    }
+  return l;
+}
+const LoadedMesh& loaded(const void* p) { return *static_cast<const LoadedMesh*>(p); }
+
 ArtifactFormat fmt(const char* ext, const char* summary, MeshFormat f) {
-  return {ext, summary, [f](const std::filesystem::path& in, const std::filesystem::path& out) {
-            write_mesh(read_msh(in), out, f);
+  return {ext, summary,
+          [f](const std::filesystem::path& in, const std::filesystem::path& out) { write_mesh(read_msh(in), out, f); },
+          [f](const void* p, const std::filesystem::path& out) {
+            const LoadedMesh& l = loaded(p);
+            if (f == MeshFormat::Vtu) write_vtu(l.mesh, out, l.quality ? &*l.quality : nullptr);
+            else write_mesh(l.mesh, out, f);
           }};
 }
 
@@ -170,13 +202,22 @@ ArtifactFormat stored_copy() {
 // The solver-ready MSH formats (make_solver_ready): no CAD parameters, every element in a
 // physical group; `pyfr` adds PyFR's naming rules (apply_pyfr_names).
 ArtifactFormat solver_msh(const char* ext, const char* summary, bool binary, bool pyfr) {
-  return {ext, summary, [binary, pyfr](const std::filesystem::path& in, const std::filesystem::path& out) {
-            model::Mesh m = read_msh(in);
-            make_solver_ready(m);
-            if (pyfr) apply_pyfr_names(m);
-            write_msh(m, out, binary);
-          }};
+  auto write = [binary, pyfr](model::Mesh m, const std::filesystem::path& out) {
+    make_solver_ready(m);
+    if (pyfr) apply_pyfr_names(m);
+    write_msh(m, out, binary);
+  };
+  return {ext, summary, [write](const std::filesystem::path& in, const std::filesystem::path& out) { write(read_msh(in), out); },
+          [write](const void* p, const std::filesystem::path& out) { write(loaded(p).mesh, out); }};
 }
+
+// The per-element quality a mesh stage stores beside its mesh (quality_io.cpp): materialised
+// as is (no formats); the mesh's formats read it.
+const ArtifactTypeRegistrar quality_type({
+    .type = "mesh_quality",
+    .extension = ".quality",
+    .summary = "per-element quality of the mesh its stage wrote beside it (det J bounds, scaled Jacobian, aspect ratio, validity)",
+});
 
 const ArtifactTypeRegistrar mesh_type({
     .type = "mesh",
@@ -191,6 +232,7 @@ const ArtifactTypeRegistrar mesh_type({
                 {"nektar-plain", fmt(".plain.xml", "Nektar++ XML session with plain-text geometry (NekMesh's :xml:uncompress form)", MeshFormat::NektarPlain)},
                 {"cgns", fmt(".cgns", "CGNS (ADF): one unstructured zone, Lagrange sections at the mesh's order (1-4), a BC and family per boundary group", MeshFormat::Cgns)}},
     .summarize = [](const std::filesystem::path& p) { return model::mesh_stats(read_msh(p)); },
+    .load = load_mesh,
 });
 
 const CommandRegistrar quality_reg({"quality", "quality FILE [--json] [--threads N]",

@@ -31,9 +31,14 @@ std::string attr(const std::string& tag, const std::string& name) {
 }
 }  // namespace
 
-void write_vtu(const Mesh& m, const std::filesystem::path& path) {
+void write_vtu(const Mesh& m, const std::filesystem::path& path, const MeshQuality* stored) {
   m.check();
-  auto quality = mesh_quality(m);
+  MeshQuality computed;
+  if (!stored) computed = mesh_quality(m);
+  const MeshQuality& quality = stored ? *stored : computed;
+  if (quality.size() != m.blocks.size())
+    throw MeshIOError(path.string() + ": the quality given for the cell fields has " + std::to_string(quality.size()) +
+                      " blocks, the mesh " + std::to_string(m.blocks.size()));
   std::vector<double> pts(3 * m.num_nodes());
   for (size_t i = 0; i < m.num_nodes(); ++i) pts[3 * i] = m.x[i], pts[3 * i + 1] = m.y[i], pts[3 * i + 2] = m.z[i];
   std::vector<std::int64_t> conn, offs;
@@ -75,6 +80,9 @@ void write_vtu(const Mesh& m, const std::filesystem::path& path) {
       gtype.push_back(gmsh_type(b.shape, b.order));
       edim.push_back(b.entity_dim), etag.push_back(b.entity_tag), phys.push_back(ph), order.push_back(b.order);
       const bool q = !quality[bi].empty();
+      if (q && quality[bi].size() != b.size())
+        throw MeshIOError(path.string() + ": the quality given for block " + std::to_string(bi) + " has " +
+                          std::to_string(quality[bi].size()) + " elements, the block " + std::to_string(b.size()));
       sj.push_back(q ? quality[bi][e].scaled_jacobian : 1.0);
       valid.push_back(q ? quality[bi][e].valid : 1);
     }

@@ -1457,7 +1457,13 @@ ElementQuality element_quality(Shape s, int order, const double* X, const double
   return q;
 }
 
+namespace {
+std::atomic<std::uint64_t> quality_calls{0};
+}
+std::uint64_t mesh_quality_calls() { return quality_calls.load(); }
+
 std::vector<std::vector<ElementQuality>> mesh_quality(const Mesh& m, int threads) {
+  ++quality_calls;
   std::vector<std::vector<ElementQuality>> res(m.blocks.size());
   const int dim = m.dimension();
   if (dim < 2) return res;

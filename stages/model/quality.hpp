@@ -85,7 +85,11 @@ void set_tet_perturbation_proof(bool on);
 
 // Quality of every element of the mesh's highest dimension: result[b][e] for block b
 // (empty for the lower-dimensional blocks). Deterministic for any thread count.
-std::vector<std::vector<ElementQuality>> mesh_quality(const Mesh& m, int threads = 0);
+using MeshQuality = std::vector<std::vector<ElementQuality>>;
+MeshQuality mesh_quality(const Mesh& m, int threads = 0);
+// Number of mesh_quality calls in this process (tests: a writer given the stored quality must
+// not compute it again).
+std::uint64_t mesh_quality_calls();
 
 // The statistics of the whole mesh as stored in stats.mesh and printed by
 // `meshflow quality --json`:

@@ -69,10 +69,11 @@ void run(StageContext& ctx) {
   ctx.progress(0.7, "writing");
   io::write_mesh(m, ctx.output("mesh", "mesh"), io::MeshFormat::MshBinary);
   ctx.progress(0.8, "quality");
-  contract::record(ctx, m, contract::Extent::Domain, &shape,
+  const auto quality = contract::record(ctx, m, contract::Extent::Domain, &shape,
                    do_untangle ? "optimise could not repair them: stats.optimise.untangle.unrepaired lists them with the "
                                  "reason and what to change (a thinner shell, a lower curve.order, larger untangle_rings or budgets)"
                                : "untangling is off (optimise.untangle: false): turn it on to repair them");
+  io::write_quality(m, quality, ctx.output("quality", "mesh_quality"));
   ctx.stats()["optimise"] = r.to_json();
   if (do_untangle) ctx.stats()["optimise"]["untangle"] = ur.to_json();
   std::ostringstream s;
@@ -119,11 +120,11 @@ void run(StageContext& ctx) {
 }
 
 StageRegistrar reg({.kind = "optimise",
-                    .version = 4,
+                    .version = 5,  // 5: also stores the mesh's per-element quality ("quality")
                     .summary = "surface node optimisation: spring energy of high-order edges/faces in CAD parameter space, bounded L-BFGS-B, validity kept",
                     .libraries = {"LBFGSpp 0.1.0"},
                     .needs = {"mesh", "shape"},
-                    .produces = {{"mesh", "mesh"}},
+                    .produces = {{"mesh", "mesh"}, {"quality", "mesh_quality"}},
                     .run = run});
 
 }  // namespace

@@ -1,5 +1,6 @@
 // The "split" stage kind: reads a "mesh" artifact, splits its near-field macro elements
-// (split.hpp), writes a "mesh" artifact and stats.mesh + stats.split.
+// (split.hpp), writes a "mesh" artifact, its per-element quality ("quality", a "mesh_quality")
+// and stats.mesh + stats.split.
 #include "engine/stage.hpp"
 #include "stages/contract/contract.hpp"
 #include "stages/io/mesh_io.hpp"
@@ -54,7 +55,9 @@ void run(StageContext& ctx) {
   contract::CadReference input_volume;
   input_volume.volume = contract::enclosed_volume(in);
   input_volume.source = "the input mesh";
-  contract::record_against(ctx, r.mesh, contract::Extent::Domain, input_volume);
+  // The contract's per-element quality is stored with the mesh: the VTU writer reads it.
+  io::write_quality(r.mesh, contract::record_against(ctx, r.mesh, contract::Extent::Domain, input_volume),
+                    ctx.output("quality", "mesh_quality"));
   ctx.stats()["split"] = to_json(r.stats);
   std::ostringstream s;
   s << "split: " << r.stats.macro_prisms << " macro prisms, "
@@ -67,10 +70,10 @@ void run(StageContext& ctx) {
 }
 
 StageRegistrar reg({.kind = "split",
-                    .version = 1,
+                    .version = 2,  // 2: also stores the mesh's per-element quality ("quality")
                     .summary = "isoparametric boundary-layer splitting of near-field prisms/hexes into `layers` sub-elements with geometric growth",
                     .needs = {"mesh"},
-                    .produces = {{"mesh", "mesh"}},
+                    .produces = {{"mesh", "mesh"}, {"quality", "mesh_quality"}},
                     .run = run});
 
 }  // namespace

@@ -59,12 +59,13 @@ void run(StageContext& ctx) {
   model::Mesh m = sweep_mesh(shape, sh, div, o, rep, [&](const std::string& l) { ctx.log(l); }, match ? &*match : nullptr);
   ctx.progress(0.85, "checking");
   m.check();
-  contract::record(ctx, m, contract::Extent::NearField, &shape);
+  const auto quality = contract::record(ctx, m, contract::Extent::NearField, &shape);
   const nlohmann::json& ms = ctx.stats()["mesh"];
   if (ms.value("invalid", 0) > 0)
     throw StageError("sweep: " + std::to_string(ms.value("invalid", 0)) + " invalid near-field elements (" +
                      ms.at("invalid_elements").dump() + "); reduce shell.thickness");
   io::write_mesh(m, ctx.output("mesh", "mesh"), io::MeshFormat::MshBinary);
+  io::write_quality(m, quality, ctx.output("quality", "mesh_quality"));
   ctx.stats()["sweep"] = rep.to_json();
   ctx.log("sweep: " + std::to_string(rep.prisms) + " prisms, " + std::to_string(rep.hexes) + " junction hexes, " +
           std::to_string(rep.wall_triangles) + " wall triangles, " + std::to_string(rep.boundary_triangles) +
@@ -73,12 +74,12 @@ void run(StageContext& ctx) {
 }
 
 StageRegistrar reg({.kind = "sweep",
-                    .version = 8,
+                    .version = 9,  // 9: also stores the mesh's per-element quality ("quality")
                     .summary = "surface meshes of all faces (CDT in the parameter plane) and the one-layer prism/hex near field",
                     .libraries = {},
                     .needs = {"shape", "shell", "divisions"},
                     .reads = {"periodic"},
-                    .produces = {{"mesh", "mesh"}},
+                    .produces = {{"mesh", "mesh"}, {"quality", "mesh_quality"}},
                     .run = run});
 
 }  // namespace

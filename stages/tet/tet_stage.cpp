@@ -39,7 +39,8 @@ void run(StageContext& ctx) {
   model::Mesh out = fill_far_field(near, opt, rep, [&](const std::string& l) { ctx.log(l); });
   ctx.progress(0.9, "writing the mesh");
   io::write_mesh(out, ctx.output("mesh", "mesh"), io::MeshFormat::MshBinary);
-  contract::record(ctx, out, contract::Extent::Domain, nullptr);
+  io::write_quality(out, contract::record(ctx, out, contract::Extent::Domain, nullptr),
+                    ctx.output("quality", "mesh_quality"));
   nlohmann::json t = rep.to_json();
   t["radius_edge"] = opt.radius_edge;
   t["min_dihedral_deg"] = opt.min_dihedral;
@@ -52,11 +53,11 @@ void run(StageContext& ctx) {
 }
 
 StageRegistrar reg({.kind = "tet",
-                    .version = 1,
+                    .version = 2,  // 2: also stores the mesh's per-element quality ("quality")
                     .summary = "fill the far field with tetrahedra (TetGen), conforming to the shell; pyramids on quads",
                     .libraries = {std::string("TetGen ") + detail::tetgen_version()},
                     .needs = {"mesh"},
-                    .produces = {{"mesh", "mesh"}},
+                    .produces = {{"mesh", "mesh"}, {"quality", "mesh_quality"}},
                     .run = run});
 
 }  // namespace

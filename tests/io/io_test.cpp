@@ -803,3 +803,103 @@ TEST_CASE("solver-ready MSH: every element in a physical group, meshio and Gmsh 
     else CHECK(a.find("periodic name 'periodic_lo'") != std::string::npos);
   }
 }
+
+namespace {
+std::string file_bytes(const fs::path& p) {
+  std::ifstream f(p, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(f), {});
+}
+}  // namespace
+
+TEST_CASE("mesh_quality artifact: the VTU writer given the stage's stored quality does not recompute it, same bytes") {
+  // A stage stores the quality its contract computed (io::write_quality) beside its mesh; the
+  // runner loads the mesh once with that companion (ArtifactType::load) and the vtu format
+  // writes from it (write_loaded). Fails if the writer computes the quality again (counter,
+  // and a deliberately altered stored quality that must reach the file) or if the bytes
+  // differ from a VTU whose quality is computed.
+  const ArtifactType* t = find_artifact_type("mesh");
+  REQUIRE(t);
+  REQUIRE(t->load);
+  REQUIRE(t->formats.at("vtu").write_loaded);
+  REQUIRE(find_artifact_type("mesh_quality"));
+  for (std::string f : {"v4.1_cube_all.msh", "v4.1_cube_prism.msh"}) {
+    INFO(f);
+    Mesh m = io::read_mesh(kData + f);
+    m.block(Shape::Tet, 4, 3, 99);  // an empty block: not written to the MSH, skipped by the quality file too
+    const auto stored = tmpdir() / "q_stored.msh", qfile = tmpdir() / "q_stored.quality";
+    io::write_msh(m, stored);
+    const MeshQuality q = mesh_quality(m, 2);
+    io::write_quality(m, q, qfile);
+
+    // round trip: every field of every element, aligned with the mesh as read back
+    const Mesh back = io::read_msh(stored);
+    const MeshQuality rq = io::read_quality(qfile, back);
+    REQUIRE(rq.size() == back.blocks.size());
+    std::size_t bi = 0, measured = 0;
+    for (std::size_t b = 0; b < m.blocks.size(); ++b) {
+      if (!m.blocks[b].size()) continue;
+      REQUIRE(rq[bi].size() == q[b].size());
+      for (std::size_t e = 0; e < q[b].size(); ++e) {
+        CHECK(rq[bi][e].scaled_jacobian == q[b][e].scaled_jacobian);
+        CHECK(rq[bi][e].aspect_ratio == q[b][e].aspect_ratio);
+        CHECK(rq[bi][e].min_det == q[b][e].min_det);
+        CHECK(rq[bi][e].max_det == q[b][e].max_det);
+        CHECK(rq[bi][e].valid == q[b][e].valid);
+        CHECK(rq[bi][e].inconclusive == q[b][e].inconclusive);
+      }
+      measured += q[b].size();
+      ++bi;
+    }
+    CHECK(measured > 0);
+
+    // the vtu format: with the stored quality, no mesh_quality call and the bytes of a computed one
+    const auto computed_vtu = tmpdir() / "q_computed.vtu", stored_vtu = tmpdir() / "q_stored.vtu";
+    t->formats.at("vtu").write(stored, computed_vtu);
+    const Artifact companion{"quality", "mesh_quality", "", "stage", qfile};
+    auto loaded = t->load(stored, {companion});
+    const auto calls = mesh_quality_calls();
+    t->formats.at("vtu").write_loaded(loaded.get(), stored_vtu);
+    CHECK(mesh_quality_calls() == calls);
+    CHECK(file_bytes(stored_vtu) == file_bytes(computed_vtu));
+    // the other formats from the loaded mesh: the bytes of their standalone writers
+    for (std::string fmt : {"nektar", "msh-plain"}) {
+      INFO(fmt);
+      const auto a = tmpdir() / ("q_a_" + fmt), b = tmpdir() / ("q_b_" + fmt);
+      t->formats.at(fmt).write(stored, a);
+      t->formats.at(fmt).write_loaded(loaded.get(), b);
+      CHECK(file_bytes(a) == file_bytes(b));
+    }
+
+    // what the stored quality says is what the file says (not recomputed): altered values show
+    MeshQuality altered = q;
+    for (auto& blk : altered)
+      for (auto& e : blk) e.scaled_jacobian = 0.123;
+    const auto qalt = tmpdir() / "q_altered.quality", alt_vtu = tmpdir() / "q_altered.vtu";
+    io::write_quality(m, altered, qalt);
+    auto loaded_alt = t->load(stored, {Artifact{"quality", "mesh_quality", "", "stage", qalt}});
+    t->formats.at("vtu").write_loaded(loaded_alt.get(), alt_vtu);
+    CHECK(mesh_quality_calls() == calls);
+    const std::string alt = file_bytes(alt_vtu);
+    CHECK(alt != file_bytes(computed_vtu));
+    const double v = 0.123;
+    CHECK(alt.find(std::string(reinterpret_cast<const char*>(&v), sizeof v)) != std::string::npos);
+
+    // without a companion (or one not of this mesh) the cell fields are computed: same bytes
+    auto loaded_none = t->load(stored, {});
+    const auto none_vtu = tmpdir() / "q_none.vtu";
+    t->formats.at("vtu").write_loaded(loaded_none.get(), none_vtu);
+    CHECK(mesh_quality_calls() == calls + 1);
+    CHECK(file_bytes(none_vtu) == file_bytes(computed_vtu));
+  }
+  // a quality file that is not the mesh's, or is cut short, is refused by read_quality
+  Mesh a = io::read_mesh(kData + "v4.1_cube_tet.msh"), b = io::read_mesh(kData + "v4.1_cube_hex.msh");
+  const auto qa = tmpdir() / "q_a.quality";
+  io::write_quality(a, mesh_quality(a), qa);
+  CHECK_THROWS_AS(io::read_quality(qa, b), io::MeshIOError);
+  std::string bytes = file_bytes(qa);
+  {
+    std::ofstream o(qa, std::ios::binary | std::ios::trunc);
+    o.write(bytes.data(), (std::streamsize)bytes.size() - 3);
+  }
+  CHECK_THROWS_AS(io::read_quality(qa, a), io::MeshIOError);
+}
