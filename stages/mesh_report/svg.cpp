@@ -79,6 +79,24 @@ void Svg::points(const std::vector<P2>& pts, char first) {
   }
 }
 
+namespace {
+// Appends ` name="value"` (the one way every element below writes an attribute).
+void attr(std::string& s, std::string_view name, double v) {
+  s += ' ';
+  s += name;
+  s += "=\"";
+  num(s, v);
+  s += '"';
+}
+void attr(std::string& s, std::string_view name, std::string_view v) {
+  s += ' ';
+  s += name;
+  s += "=\"";
+  s += v;
+  s += '"';
+}
+}  // namespace
+
 void Svg::begin_group(std::string_view stroke, double stroke_width) {
   body_ += "<g stroke=\"";
   body_ += stroke;
@@ -136,49 +154,35 @@ void Svg::polyline(const std::vector<P2>& pts, std::string_view stroke, double s
 }
 
 void Svg::rect(double x, double y, double w, double h, std::string_view fill, std::string_view stroke) {
-  body_ += "<rect x=\"";
-  num(body_, x);
-  body_ += "\" y=\"";
-  num(body_, y);
-  body_ += "\" width=\"";
-  num(body_, w);
-  body_ += "\" height=\"";
-  num(body_, h);
-  body_ += "\" fill=\"";
-  body_ += fill;
-  body_ += "\" stroke=\"";
-  body_ += stroke;
-  body_ += "\"/>\n";
+  body_ += "<rect";
+  attr(body_, "x", x);
+  attr(body_, "y", y);
+  attr(body_, "width", w);
+  attr(body_, "height", h);
+  attr(body_, "fill", fill);
+  attr(body_, "stroke", stroke);
+  body_ += "/>\n";
 }
 
 void Svg::circle(double x, double y, double r, std::string_view fill, std::string_view stroke, double sw) {
-  body_ += "<circle cx=\"";
-  num(body_, x);
-  body_ += "\" cy=\"";
-  num(body_, y);
-  body_ += "\" r=\"";
-  num(body_, r);
-  body_ += "\" fill=\"";
-  body_ += fill;
-  body_ += "\" stroke=\"";
-  body_ += stroke;
-  body_ += "\" stroke-width=\"";
-  num(body_, sw);
-  body_ += "\"/>\n";
+  body_ += "<circle";
+  attr(body_, "cx", x);
+  attr(body_, "cy", y);
+  attr(body_, "r", r);
+  attr(body_, "fill", fill);
+  attr(body_, "stroke", stroke);
+  attr(body_, "stroke-width", sw);
+  body_ += "/>\n";
 }
 
 void Svg::text(double x, double y, std::string_view t, double size, std::string_view anchor, std::string_view fill) {
-  body_ += "<text x=\"";
-  num(body_, x);
-  body_ += "\" y=\"";
-  num(body_, y);
-  body_ += "\" font-size=\"";
-  num(body_, size);
-  body_ += "\" text-anchor=\"";
-  body_ += anchor;
-  body_ += "\" fill=\"";
-  body_ += fill;
-  body_ += "\">";
+  body_ += "<text";
+  attr(body_, "x", x);
+  attr(body_, "y", y);
+  attr(body_, "font-size", size);
+  attr(body_, "text-anchor", anchor);
+  attr(body_, "fill", fill);
+  body_ += '>';
   body_ += html_escape(t);
   body_ += "</text>\n";
 }
