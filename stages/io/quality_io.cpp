@@ -16,7 +16,6 @@
 #include "stages/io/mesh_io.hpp"
 #include "stages/io/reader.hpp"
 
-#include <cstring>
 #include <fstream>
 
 namespace meshflow::io {
@@ -30,21 +29,6 @@ template <class T>
 void put(std::string& s, T v) {
   s.append(reinterpret_cast<const char*>(&v), sizeof v);
 }
-
-struct In {
-  const std::string& d;
-  const std::filesystem::path& path;
-  size_t pos = 0;
-  template <class T>
-  T get() {
-    if (d.size() - pos < sizeof(T))
-      throw MeshIOError(path.string() + ": truncated mesh quality file at byte " + std::to_string(pos));
-    T v;
-    std::memcpy(&v, d.data() + pos, sizeof v);
-    pos += sizeof v;
-    return v;
-  }
-};
 }  // namespace
 
 void write_quality(const Mesh& m, const MeshQuality& q, const std::filesystem::path& path) {
@@ -87,11 +71,12 @@ MeshQuality read_quality(const std::filesystem::path& path, const Mesh& m) {
   const std::string d = detail::slurp(path);
   if (d.compare(0, sizeof kMagic - 1, kMagic) != 0)
     throw MeshIOError(path.string() + ": not a meshflow mesh quality file (no '" + std::string(kMagic, sizeof kMagic - 2) + "')");
-  In in{d, path, sizeof kMagic - 1};
+  detail::Cursor in(path.string(), d);
+  in.skip(sizeof kMagic - 1);
   std::vector<size_t> nonempty;
   for (size_t bi = 0; bi < m.blocks.size(); ++bi)
     if (m.blocks[bi].size()) nonempty.push_back(bi);
-  const auto nb = in.get<std::uint64_t>();
+  const auto nb = in.bin<std::uint64_t>("the number of blocks");
   if (nb != nonempty.size())
     throw MeshIOError(path.string() + ": the quality of " + std::to_string(nb) + " element blocks for a mesh of " +
                       std::to_string(nonempty.size()) + ": not this mesh's");
@@ -99,9 +84,9 @@ MeshQuality read_quality(const std::filesystem::path& path, const Mesh& m) {
   std::vector<bool> measured(m.blocks.size());
   for (size_t bi : nonempty) {
     const auto& b = m.blocks[bi];
-    const auto type = in.get<std::int32_t>(), edim = in.get<std::int32_t>(), etag = in.get<std::int32_t>(),
-               meas = in.get<std::int32_t>();
-    const auto n = in.get<std::uint64_t>();
+    const auto type = in.bin<std::int32_t>("a block's element type"), edim = in.bin<std::int32_t>("a block's entity dim"),
+               etag = in.bin<std::int32_t>("a block's entity tag"), meas = in.bin<std::int32_t>("a block's measured flag");
+    const auto n = in.bin<std::uint64_t>("a block's element count");
     if (type != gmsh_type(b.shape, b.order) || edim != b.entity_dim || etag != b.entity_tag || n != b.size() ||
         (meas != 0 && meas != 1))
       throw MeshIOError(path.string() + ": the quality's block " + std::to_string(bi) + " (type " + std::to_string(type) +
@@ -113,18 +98,17 @@ MeshQuality read_quality(const std::filesystem::path& path, const Mesh& m) {
     if (!measured[bi]) continue;
     auto& v = q[bi];
     v.resize(m.blocks[bi].size());
-    for (auto& e : v) e.min_det = in.get<double>();
-    for (auto& e : v) e.max_det = in.get<double>();
-    for (auto& e : v) e.scaled_jacobian = in.get<double>();
-    for (auto& e : v) e.aspect_ratio = in.get<double>();
+    for (auto& e : v) e.min_det = in.bin<double>("min_det");
+    for (auto& e : v) e.max_det = in.bin<double>("max_det");
+    for (auto& e : v) e.scaled_jacobian = in.bin<double>("scaled_jacobian");
+    for (auto& e : v) e.aspect_ratio = in.bin<double>("aspect_ratio");
     for (auto& e : v) {
-      const auto f = in.get<std::uint8_t>();
-      if (f > 7) throw MeshIOError(path.string() + ": bad element flags " + std::to_string(f) + " at byte " + std::to_string(in.pos - 1));
+      const auto f = in.bin<std::uint8_t>("element flags");
+      if (f > 7) in.fail("bad element flags " + std::to_string(f), true, in.pos() - 1);
       e.valid = f & 1, e.inconclusive = f & 2, e.sampled = f & 4;
     }
   }
-  if (in.pos != d.size())
-    throw MeshIOError(path.string() + ": " + std::to_string(d.size() - in.pos) + " bytes after the mesh quality's end");
+  if (!in.eof()) in.fail(std::to_string(d.size() - in.pos()) + " bytes after the mesh quality's end", true);
   return q;
 }
 
