@@ -3,7 +3,7 @@ BUILD ?= build
 JOBS ?= $(shell nproc)
 CMAKE_FLAGS ?=
 
-.PHONY: all deps build demo test test-cluster bench bench-matrix corpus pictures test-asan fuzz clean
+.PHONY: all deps build demo test test-cluster bench bench-speed bench-matrix corpus pictures test-asan fuzz clean
 
 all: build
 
@@ -30,6 +30,12 @@ test-cluster: build
 bench: build
 	cmake --build $(BUILD) -j $(JOBS) --target benchmarks
 	bench/run.sh $(BUILD)
+
+# Issue 24's speed table alone (bench/speed.sh, ~25 min on 2 cores: the paper's wing beside Gmsh,
+# DLR-F6, Rotor 67 cold, a split-only change, the cylinder), then RESULTS.md reassembled
+bench-speed: build
+	bench/speed.sh $(BUILD)
+	bench/run.sh --assemble
 
 # A 6-variant matrix of the demo from a cold cache: meshflow run -j 1, -j 2, Snakemake --cores 2
 # (bench/matrix.sh, REPS=3 repetitions: ~15-25 min on 2 cores), then RESULTS.md reassembled

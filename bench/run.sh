@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Runs every benchmark built in BUILD/bench and assembles bench/RESULTS.md from the
+# Runs every benchmark built in BUILD/bench and bench/speed.sh (issue 24's table), and assembles bench/RESULTS.md from the
 # fragments they write to bench/results/ (each fragment names the command that produced it).
 # Usage: bench/run.sh [BUILD]      run all, then assemble
 #        bench/run.sh --assemble   only assemble the fragments already there
@@ -14,6 +14,8 @@ else
     echo "== $b"
     "$b"
   done
+  echo "== bench/speed.sh"
+  bench/speed.sh "$build"
   how="Produced by \`make bench\` on $(date -u +%Y-%m-%d)"
 fi
 {

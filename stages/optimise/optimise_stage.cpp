@@ -91,7 +91,7 @@ void run(StageContext& ctx) {
     std::ostringstream u;
     u << "optimise: untangle: " << ur.invalid_before << " invalid elements -> " << ur.invalid_after << " (" << ur.repaired
       << " patches repaired in " << ur.attempts << " attempts, " << ur.repaired_sliding << " of them sliding "
-      << ur.surface_nodes_moved << " nodes on the CAD; " << ur.nodes_moved << " off-CAD nodes moved, largest move "
+      << ur.surface_nodes_moved << " nodes on the CAD; " << ur.folded_wall << " with a folded wall face slid first; " << ur.nodes_moved << " off-CAD nodes moved, largest move "
       << ur.max_move << " x element size; work " << ur.work / 1e6 << " M Jacobian samples, at most " << ur.max_element_work / 1e6
       << " M for one element; " << ur.seconds << " s)";
     ctx.log(u.str());
@@ -120,7 +120,7 @@ void run(StageContext& ctx) {
 }
 
 StageRegistrar reg({.kind = "optimise",
-                    .version = 5,  // 5: also stores the mesh's per-element quality ("quality")
+                    .version = 6,  // 5: also stores the mesh's per-element quality ("quality"); 6: a folded wall face slides first
                     .summary = "surface node optimisation: spring energy of high-order edges/faces in CAD parameter space, bounded L-BFGS-B, validity kept",
                     .libraries = {"LBFGSpp 0.1.0"},
                     .needs = {"mesh", "shape"},

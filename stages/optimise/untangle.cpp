@@ -49,6 +49,7 @@ nlohmann::json UntangleReport::to_json() const {
           {"nodes_moved", nodes_moved},
           {"surface_nodes_moved", surface_nodes_moved},
           {"repaired_sliding_on_cad", repaired_sliding},
+          {"folded_wall_faces", folded_wall},
           {"max_move_relative", max_move},
           {"work", {{"jacobian_samples", work}, {"max_per_element", max_element_work}, {"repairs", repair_work}}},
           {"budget", {{"elements_exhausted", budget_exhausted}, {"no_progress_stop", stage_budget_exhausted},
@@ -630,6 +631,7 @@ struct NodeBefore {
 struct ElementRun {
   enum Kind : std::uint8_t { not_run, already_valid, in_failed_patch, tried } kind = not_run;
   bool repaired = false, sliding = false;
+  bool folded = false;  // a wall face folded on the CAD: sliding was tried first
   int ring = 0;
   Why why = none;  // tried, not repaired
   double work = 0;
@@ -861,9 +863,61 @@ void log_attempt(const State& S, const Patch& P, const ElemRef& bad, int ring, i
     }
 }
 
+// Whether a face of the element that lies on the CAD (every node of it on a CAD entity, one
+// inside a CAD face) is folded: its curved normal n = x_s x x_t turns against the normal of the
+// same face made of its vertices only (the straight face the linear mesh had) at a sample of the
+// face's order P + 2 lattice. On such a face det J = n . x_w (x_w the derivative into the
+// element) can only be positive where n has turned if x_w turns with it, out of the domain
+// through the wall: moving the off-CAD nodes can make det J positive there only by an element
+// that leaves the fluid and overlaps the solid, never by a geometrically valid one. Only the
+// nodes on the face, sliding on the CAD, undo the fold ("fold" in untangle.hpp).
+bool folded_wall_face(const State& S, const ElemRef& r) {
+  const Mesh& m = S.m;
+  if (m.node_entity_dim.size() != m.num_nodes()) return false;
+  const auto& b = m.blocks[r.block];
+  const std::uint32_t* en = b.element(r.index);
+  const auto& faces = model::face_nodes(b.shape, b.order);
+  for (std::size_t f = 0; f < faces.size(); ++f) {
+    const auto& fn = faces[f];
+    bool on_cad = true, in_face = false;
+    for (int a : fn) {
+      const int d = m.node_entity_dim[en[a]];
+      on_cad = on_cad && d >= 0 && d < 3;
+      in_face = in_face || d == 2;
+    }
+    if (!on_cad || !in_face) continue;
+    const Shape fs = int(fn.size()) == model::num_nodes(Shape::Tri, b.order) ? Shape::Tri : Shape::Quad;
+    const int nv = model::num_vertices(fs);
+    const auto& basis = model::LagrangeBasis::get(fs, b.order);
+    const auto& lin = model::LagrangeBasis::get(fs, 1);
+    std::vector<double> X(3 * fn.size()), XL(3 * std::size_t(nv));
+    for (std::size_t a = 0; a < fn.size(); ++a) {
+      const std::uint32_t v = en[fn[a]];
+      X[3 * a] = m.x[v], X[3 * a + 1] = m.y[v], X[3 * a + 2] = m.z[v];
+    }
+    std::copy(X.begin(), X.begin() + 3 * nv, XL.begin());
+    for (const model::Vec3& xi : model::reference_nodes(fs, std::min(model::kMaxOrder, b.order + 2))) {
+      double J[9], JL[9];
+      model::jacobian(basis, X.data(), xi, J);
+      model::jacobian(lin, XL.data(), xi, JL);
+      auto normal = [](const double* A, double n[3]) {
+        n[0] = A[3] * A[7] - A[6] * A[4];
+        n[1] = A[6] * A[1] - A[0] * A[7];
+        n[2] = A[0] * A[4] - A[3] * A[1];
+      };
+      double n[3], nl[3];
+      normal(J, n);
+      normal(JL, nl);
+      if (n[0] * nl[0] + n[1] * nl[1] + n[2] * nl[2] <= 0) return true;
+    }
+  }
+  return false;
+}
+
 // Tries to repair one invalid element ("patch" .. "accept" in untangle.hpp): rings 1..max_rings,
-// each off-CAD then sliding, each in up to three attempts. Reads and writes only its largest
-// patch (the nodes of its elements, their validity and hopeless flags).
+// each off-CAD then sliding, each in up to three attempts; an element with a wall face folded on
+// the CAD slides first, at every ring, and tries the off-CAD nodes alone only after that. Reads
+// and writes only its largest patch (the nodes of its elements, their validity and hopeless flags).
 ElementRun repair_element(State& S, const ElemRef& bad) {
   ElementRun run;
   run.kind = S.valid[bad.block][bad.index]      ? ElementRun::already_valid  // repaired with an earlier patch
@@ -884,12 +938,26 @@ ElementRun repair_element(State& S, const ElemRef& bad) {
   }
   bool any_attempt = false, any_degenerate = false, last_stuck = false, done = false;
   int out = -1;  // OutOfBudget::Which, when a budget ran out
-  std::vector<ElemRef> patch{bad};
-  for (int ring = 1; ring <= opt.max_rings && !done && out < 0; ++ring) {
-    patch = S.grow(patch);
-    // mode 0 moves the off-CAD nodes only; mode 1 (with a shape) also slides the nodes inside
-    // CAD faces on their faces: a wall face folded on the CAD cannot be repaired by the volume
-    for (int mode = 0; mode < (S.shape && opt.surface ? 2 : 1) && !done && out < 0; ++mode) {
+  // the patches of rings 1..max_rings
+  std::vector<std::vector<ElemRef>> patches;
+  std::vector<ElemRef> grown{bad};
+  for (int ring = 1; ring <= opt.max_rings; ++ring) patches.push_back(grown = S.grow(grown));
+  int reached = 1;  // the largest ring tried
+  // (ring, mode): mode 0 moves the off-CAD nodes only; mode 1 (with a shape) also slides the
+  // nodes inside CAD faces on their faces. Off-CAD first, ring by ring, so a repair that needs no
+  // surface move makes none; with a folded wall face, sliding first at every ring
+  const bool sliding = S.shape && opt.surface;
+  run.folded = sliding && folded_wall_face(S, bad);
+  std::vector<std::pair<int, int>> order;
+  for (int ring = 1; ring <= opt.max_rings; ++ring)
+    for (int mode = 0; mode < (sliding ? 2 : 1); ++mode) order.push_back({ring, mode});
+  if (run.folded)
+    std::stable_sort(order.begin(), order.end(), [](const auto& a, const auto& b) { return a.second > b.second; });
+  for (auto [ring, mode] : order) {
+    if (done || out >= 0) break;
+    reached = std::max(reached, ring);
+    {
+      const std::vector<ElemRef>& patch = patches[std::size_t(ring - 1)];
       Patch P(S.m);
       P.arena = &S.arena;
       P.shape = S.shape;
@@ -957,7 +1025,7 @@ ElementRun repair_element(State& S, const ElemRef& bad) {
                                         : no_free;
   if (run.why == time_limit) return run;
   // the invalid elements of its largest patch are not tried again ("hopeless")
-  for (const ElemRef& r : patch)
+  for (const ElemRef& r : patches[std::size_t(reached - 1)])
     if (!S.valid[r.block][r.index] && !S.hopeless[r.block][r.index]) {
       S.hopeless[r.block][r.index] = 1;
       run.marked_hopeless.push_back(r);
@@ -1037,6 +1105,7 @@ struct Ledger {
     }
     SB.total += run.work;
     SB.stage_used += run.work;
+    rep.folded_wall += run.folded;
     rep.attempts += run.attempts;
     rep.early_exits += run.early_exits;
     rep.stuck += run.stuck;

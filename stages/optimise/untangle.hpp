@@ -39,6 +39,13 @@
 //           whose optimised edges cross) is repaired this way; the nodes stay on the CAD and the
 //           node parameters are updated. Off-CAD first, so a repair that needs no surface move
 //           makes none.
+//   fold    except for an element with a face on the CAD that is folded: its curved normal turns
+//           against its straight face's normal at a sample (order P + 2). There det J = n . x_w
+//           (x_w the derivative into the element) can be made positive by off-CAD moves only by
+//           turning x_w out through the wall, an element that overlaps the solid; only sliding
+//           undoes the fold. Such an element tries sliding first at every ring, then off-CAD
+//           (counted: folded_wall_faces). On DLR-F6 two such prisms spent 141 s, 46% of the
+//           untangling, in off-CAD attempts that failed before sliding repaired them in 1.6 and 16 s.
 //   accept when every patch element that was valid stays valid, the element is valid by the
 //           Bezier bounds of stages/model/quality.hpp (the proof, not the samples), and no patch
 //           element ends below the lowest scaled Jacobian of the patch before (never worse: another
@@ -119,6 +126,7 @@ struct UntangleReport {
   std::size_t invalid_before = 0, invalid_after = 0;  // invalid 3D elements of the whole mesh
   std::size_t attempts = 0, repaired = 0, nodes_moved = 0;
   std::size_t surface_nodes_moved = 0, repaired_sliding = 0;  // nodes slid on CAD faces; patches that needed it
+  std::size_t folded_wall = 0;  // tried elements with a wall face folded on the CAD (sliding tried first)
   std::size_t skipped = 0;  // invalid elements inside the largest patch of one that could not be repaired: not tried
   std::size_t early_exits = 0;  // second/third attempts stopped at the first tested point that was acceptable
   std::size_t stuck = 0;    // patch attempts whose coarse try stayed >= target^2: the harder tries were skipped

@@ -335,6 +335,12 @@ TEST_CASE("untangle: a wall triangle folded on the CAD is repaired only by slidi
   CHECK(invalid_count(m) == 0);
   CHECK(r.repaired_sliding > 0);
   CHECK(r.surface_nodes_moved > 0);
+  // the folded wall face is seen before any attempt: its element slides first, so its first
+  // attempt (the log's first line) is a sliding one and no off-CAD attempt precedes the repair
+  CHECK(r.folded_wall >= 1);
+  CHECK(r.folded_wall <= r.invalid_before);
+  const std::string first = log.substr(0, log.find('\n'));
+  CHECK(first.find("sliding on the CAD") != std::string::npos);
   CHECK(opttest::max_param_error(m, s) < 1e-7);  // every node on the CAD is still on it, parameters updated
   std::size_t vertices_moved = 0;
   for (const auto& b : m.blocks)
@@ -352,6 +358,43 @@ TEST_CASE("untangle: a wall triangle folded on the CAD is repaired only by slidi
   for (std::size_t i = 0; i < m.num_nodes(); ++i)
     same_params = same_params && (std::isnan(m.node_u[i]) ? std::isnan(again.node_u[i]) : again.node_u[i] == m.node_u[i]);
   CHECK(same_params);
+}
+
+TEST_CASE("untangle: a prism inverted by its off-CAD nodes, wall face not folded, is repaired off the CAD, not slid first") {
+  // The same sphere patch without the fold; the high-order nodes inside the first prism (in no
+  // other element) are pushed through its wall, half a layer thickness inside the sphere, so det
+  // J is negative while its wall triangle is the curved one curving made.
+  const Shape& s = shapes().sphere;
+  opttest::Distortion d;
+  d.bunch = 0.0;
+  Mesh m0 = opttest::sphere_patch(s, 4, {}, d, 0.05);
+  REQUIRE(invalid_count(m0) == 0);
+  const auto& b = m0.blocks.back();
+  REQUIRE(b.shape == model::Shape::Prism);
+  const std::uint32_t* en = b.element(0);
+  std::vector<int> uses(m0.num_nodes(), 0);
+  for (const auto& bb : m0.blocks)
+    for (std::size_t e = 0; e < bb.size(); ++e)
+      for (int a = 0; a < bb.nodes_per_element(); ++a) ++uses[bb.element(e)[a]];
+  const double R = std::hypot(m0.x[en[0]], m0.y[en[0]], m0.z[en[0]]);  // a wall vertex: on the sphere
+  int pushed = 0;
+  for (int a = model::num_vertices(b.shape); a < b.nodes_per_element(); ++a) {
+    const auto v = en[a];
+    if (m0.node_entity_dim[v] != 3 || uses[v] != 1) continue;
+    const double k = (R - 0.5 * 0.05) / std::hypot(m0.x[v], m0.y[v], m0.z[v]);
+    m0.x[v] *= k, m0.y[v] *= k, m0.z[v] *= k;
+    ++pushed;
+  }
+  REQUIRE(pushed > 0);
+  REQUIRE(invalid_count(m0) > 0);
+  Mesh m = m0;
+  std::string log;
+  auto r = opt::untangle(m, {}, 1, [&](const std::string& l) { log += l + "\n"; }, &s);
+  MESSAGE(log);
+  CHECK(r.folded_wall == 0);
+  CHECK(r.invalid_after == 0);
+  CHECK(r.surface_nodes_moved == 0);
+  CHECK(log.substr(0, log.find('\n')).find("sliding on the CAD") == std::string::npos);
 }
 
 namespace {
