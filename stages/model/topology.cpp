@@ -29,8 +29,19 @@ Topology build_topology(const Mesh& m) {
   t.dim = m.dimension();
   if (t.dim < 2) return t;
   const std::uint32_t none = std::numeric_limits<std::uint32_t>::max();
+  // Every vector is sized before it is filled: growing by doubling held up to three times a
+  // vector's size while it moved (the split stage's peak memory on order-4 meshes of millions
+  // of nodes is the mesh plus this topology; issue 24 item 4)
+  std::size_t nrecs = 0, nedges = 0;
+  for (const auto& b : m.blocks) {
+    if (dimension(b.shape) != t.dim) continue;
+    nrecs += b.size() * (t.dim == 3 ? face_vertices(b.shape).size() : edge_vertices(b.shape).size());
+    nedges += b.size() * edge_vertices(b.shape).size();
+  }
   std::vector<Rec> recs;
   std::vector<std::array<std::uint32_t, 2>> edges;
+  recs.reserve(nrecs);
+  edges.reserve(nedges);
   for (std::uint32_t bi = 0; bi < m.blocks.size(); ++bi) {
     const auto& b = m.blocks[bi];
     if (dimension(b.shape) != t.dim) continue;
@@ -61,21 +72,27 @@ Topology build_topology(const Mesh& m) {
   std::sort(recs.begin(), recs.end());
   std::sort(edges.begin(), edges.end());
   edges.erase(std::unique(edges.begin(), edges.end()), edges.end());
-  t.edges = std::move(edges);
+  t.edges.assign(edges.begin(), edges.end());  // exactly sized, unlike the vector erase() shortened
+  std::vector<std::array<std::uint32_t, 2>>().swap(edges);
+  std::size_t nfaces = 0;
+  for (size_t i = 0; i < recs.size(); ++i) nfaces += i == 0 || recs[i].key != recs[i - 1].key;
+  t.faces.reserve(nfaces);
+  std::vector<std::uint32_t> s[2];
   for (size_t i = 0; i < recs.size();) {
     size_t j = i;
     while (j < recs.size() && recs[j].key == recs[i].key) ++j;
     TopoFace f;
     f.vertices = recs[i].key;
     f.num_vertices = recs[i].nv;
+    f.elements.reserve(j - i);
     for (size_t k = i; k < j; ++k) f.elements.push_back(recs[k].ref);
     if (f.elements.size() > 2) f.conforming = false;
     if (f.elements.size() == 2) {
-      std::vector<std::uint32_t> s[2];
       for (int k = 0; k < 2; ++k) {
         const auto& r = f.elements[k];
         const auto& b = m.blocks[r.block];
         const std::uint32_t* n = b.element(r.element);
+        s[k].clear();
         for (int ln : side_nodes(b.shape, b.order, (int)r.local)) s[k].push_back(n[ln]);
         std::sort(s[k].begin(), s[k].end());
       }

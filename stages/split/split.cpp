@@ -439,6 +439,12 @@ double ratio_for_first_fraction(int layers, double fraction) {
   return 0.5 * (lo + hi);
 }
 
+// Frees a container's memory now (clear() keeps the capacity).
+template <class C>
+static void release(C& c) {
+  C().swap(c);
+}
+
 Result split_mesh(const Mesh& in, const Options& opt, int threads) {
   if (opt.layers < 1 || opt.layers > 100) throw StageError("split: layers must be in [1, 100]");
   if (!(opt.ratio >= 1 && opt.ratio <= 10)) throw StageError("split: ratio must be in [1, 10]");
@@ -874,6 +880,10 @@ Result split_mesh(const Mesh& in, const Options& opt, int threads) {
     nb.shape = b.shape, nb.order = b.order, nb.entity_dim = b.entity_dim, nb.entity_tag = b.entity_tag;
     const int dim = model::dimension(b.shape);
     if (first_macro[bi] != SIZE_MAX) {
+      std::size_t total = 0;
+      for (std::size_t i = first_macro[bi]; i < macros.size() && macros[i].block == bi; ++i)
+        total += std::size_t(patterns[macros[i].pattern].nsub) * patterns[macros[i].pattern].nps;
+      nb.nodes.reserve(total);
       for (std::size_t i = first_macro[bi]; i < macros.size() && macros[i].block == bi; ++i) {
         const Pattern& pt = patterns[macros[i].pattern];
         for (std::size_t s = 0; s < std::size_t(pt.nsub) * pt.nps; ++s) nb.nodes.push_back(fid[foff[i] + pt.sub_nodes[s]]);
@@ -947,6 +957,12 @@ Result split_mesh(const Mesh& in, const Options& opt, int threads) {
     out.blocks.push_back(std::move(nb));
   }
 
+  // The numbering's maps and the per-macro fine-point ids are done with: release them before
+  // the compaction and the conformity check, which then hold the output mesh, the input and one
+  // topology at a time (the stage's peak memory; issue 24 item 4)
+  release(keyed), release(fid), release(owner), release(walls), release(bfaces), release(bedges);
+  release(split_faces), release(split_edges), release(master);
+
   // drop the nodes no element uses any more (the original high-order nodes inside split
   // edges, faces and volumes); keep the order of the others
   std::vector<std::uint32_t> newid(ntot, kNone);
@@ -974,26 +990,29 @@ Result split_mesh(const Mesh& in, const Options& opt, int threads) {
   }
   out.periodic = std::move(periodic);
   st.nodes_in = n0, st.nodes_out = c, st.dropped_nodes = ntot - c;
+  release(newid);
 
   if (opt.check_conformity) {
-    model::Topology tin = model::build_topology(in);
-    std::size_t nc_in = tin.nonconforming_faces;
-    model::Topology t = model::build_topology(out);
     // every boundary face of the input becomes its sub-faces, every interior face stays
     // interior: a split face whose neighbour splits it differently would show up as extra
     // boundary faces (hanging nodes), not as a non-conforming pair
-    std::size_t expect_boundary = 0;
-    for (auto& f : tin.faces) {
-      if (f.elements.size() != 1) continue;
-      const ElementRef& r = f.elements[0];
-      std::size_t mi = first_macro[r.block] == SIZE_MAX ? SIZE_MAX : first_macro[r.block] + r.element;
-      if (mi == SIZE_MAX) {
-        ++expect_boundary;
-        continue;
+    std::size_t expect_boundary = 0, nc_in = 0;
+    {  // the input's topology, dropped before the output's is built
+      const model::Topology tin = model::build_topology(in);
+      nc_in = tin.nonconforming_faces;
+      for (auto& f : tin.faces) {
+        if (f.elements.size() != 1) continue;
+        const ElementRef& r = f.elements[0];
+        std::size_t mi = first_macro[r.block] == SIZE_MAX ? SIZE_MAX : first_macro[r.block] + r.element;
+        if (mi == SIZE_MAX) {
+          ++expect_boundary;
+          continue;
+        }
+        const Pattern& pt = patterns[macros[mi].pattern];
+        expect_boundary += pt.face_split[r.local] ? pt.face_subs[r.local].size() : 1;
       }
-      const Pattern& pt = patterns[macros[mi].pattern];
-      expect_boundary += pt.face_split[r.local] ? pt.face_subs[r.local].size() : 1;
     }
+    model::Topology t = model::build_topology(out);
     if (t.boundary_faces != expect_boundary) {
       std::string at;
       for (auto& f : t.faces)

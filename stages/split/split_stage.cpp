@@ -46,15 +46,16 @@ void run(StageContext& ctx) {
   } catch (const io::MeshIOError& e) {
     throw StageError(std::string("split: cannot read the input mesh: ") + e.what());
   }
-  ctx.progress(0.1, "splitting");
-  Result r = split_mesh(in, opt, ctx.threads());
-  ctx.progress(0.6, "writing");
-  io::write_mesh(r.mesh, ctx.output("mesh", "mesh"), io::MeshFormat::MshBinary);
-  ctx.progress(0.7, "quality");
   // Splitting maps sub-elements through their macro element: the domain it fills is the input's.
   contract::CadReference input_volume;
   input_volume.volume = contract::enclosed_volume(in);
   input_volume.source = "the input mesh";
+  ctx.progress(0.1, "splitting");
+  Result r = split_mesh(in, opt, ctx.threads());
+  in = model::Mesh();  // not needed any more: the writer and the contract hold the split mesh alone
+  ctx.progress(0.6, "writing");
+  io::write_mesh(r.mesh, ctx.output("mesh", "mesh"), io::MeshFormat::MshBinary);
+  ctx.progress(0.7, "quality");
   // The contract's per-element quality is stored with the mesh: the VTU writer reads it.
   io::write_quality(r.mesh, contract::record_against(ctx, r.mesh, contract::Extent::Domain, input_volume),
                     ctx.output("quality", "mesh_quality"));
