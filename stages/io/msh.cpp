@@ -151,6 +151,7 @@ Mesh read_msh4(Cursor& c, bool binary, const std::string& path) {
       hint_huge_pages(m.node_entity_dim), hint_huge_pages(m.node_entity_tag);
       bool any_param = false;
       for (std::uint64_t b = 0; b < nblocks; ++b) {
+        c.done_before_here();  // the blocks before are parsed
         int dim = static_cast<int>(I("entity dimension"));
         int tag = static_cast<int>(I("entity tag"));
         int param = static_cast<int>(I("parametric flag"));
@@ -190,6 +191,7 @@ Mesh read_msh4(Cursor& c, bool binary, const std::string& path) {
             double v[6] = {0, 0, 0, NAN, NAN, NAN};
             std::memcpy(v, c.at() + rec * i, rec);
             add_node(v, first + i, c.pos() + rec * i);
+            if ((i & 0xffff) == 0xffff) c.done_before(c.pos() + rec * i);  // parsed: may leave memory
           }
           c.skip(n * rec);
           continue;
@@ -209,6 +211,7 @@ Mesh read_msh4(Cursor& c, bool binary, const std::string& path) {
       for (size_t i = 0; i < node_tags.size(); ++i)
         if (index.find(node_tags[i]) != i) c.fail("duplicate node tag " + std::to_string(node_tags[i]), binary);
       have_nodes = true;
+      c.done_before_here();
       c.expect("$EndNodes");
     } else if (name == "Elements") {
       if (!have_nodes) c.fail("$Elements before $Nodes", false, at);
@@ -217,6 +220,7 @@ Mesh read_msh4(Cursor& c, bool binary, const std::string& path) {
       S("max element tag");
       std::uint64_t total = 0;
       for (std::uint64_t b = 0; b < nblocks; ++b) {
+        c.done_before_here();
         int dim = static_cast<int>(I("entity dimension"));
         int tag = static_cast<int>(I("entity tag"));
         size_t tat = c.pos();
@@ -248,6 +252,7 @@ Mesh read_msh4(Cursor& c, bool binary, const std::string& path) {
             return v;
           };
           for (std::uint64_t e = 0; e < n; ++e, p += rec) {
+            if ((e & 0xffff) == 0xffff) c.done_before(c.pos() + e * rec);
             const std::uint64_t etag = u64(p);
             blk.tags.push_back(etag);
             for (int k = 0; k < npe; ++k) {
@@ -526,6 +531,7 @@ void classify_nodes(Mesh& m) {
 Mesh read_msh(const std::filesystem::path& path) {
   const detail::FileBytes data(path);
   Cursor c(path.string(), data.view());
+  c.on_done([&data](size_t pos) { data.release_before(pos); });
   c.skip_ws();
   if (c.eof()) c.fail("empty file (not a Gmsh MSH file)");
   std::string head = c.line();

@@ -38,7 +38,14 @@ struct NekOut {
     s.clear();
   }
   NekOut& operator<<(std::string_view t) {
-    s.append(t);
+    if (t.size() < (1u << 20)) {
+      s.append(t);
+      return *this;
+    }
+    // a compressed section (up to hundreds of MB): written as it is, not copied into the buffer
+    flush();
+    f.write(t.data(), static_cast<std::streamsize>(t.size()));
+    if (!f) throw MeshIOError(fp.string() + ": write failed (disk full?)");
     return *this;
   }
   NekOut& operator<<(const char* t) { return *this << std::string_view(t); }
@@ -374,6 +381,18 @@ void b64z_curves(NekOut& o, const Numbering& t) {
   };
   std::vector<nektar::CurvedInfo> einfo, finfo;
   std::vector<std::uint32_t> line;
+  // sized before they are filled: a doubling vector moves while it holds both copies (Rotor 67's
+  // order 4: ~10^8 indices); pts has at most one entry per node (untouched capacity is not resident)
+  std::size_t nindex = t.edges.size() * std::size_t(t.P + 1), nfaces = 0;
+  for (std::size_t i = 0; t.dim == 3 && i < t.faces.size(); ++i)
+    if (curved_face(t, i)) {
+      ++nfaces;
+      nindex += t.faces[i].first.n == 4 ? std::size_t(t.P + 1) * (t.P + 1) : std::size_t(t.P + 1) * (t.P + 2) / 2;
+    }
+  index.reserve(nindex);
+  pts.reserve(m.num_nodes());
+  einfo.reserve(t.edges.size());
+  finfo.reserve(nfaces);
   for (std::size_t i = 0; i < t.edges.size(); ++i) {
     t.edge_line(i, line);
     einfo.push_back({(std::int64_t)i, (std::int64_t)i, (std::int64_t)line.size(), 0, (std::int64_t)index.size(), nektar::kPolyEvenlySpaced});
@@ -386,11 +405,17 @@ void b64z_curves(NekOut& o, const Numbering& t) {
     finfo.push_back({(std::int64_t)finfo.size(), (std::int64_t)i, (std::int64_t)line.size(), 0, (std::int64_t)index.size(), type});
     add_points(line);
   }
+  // each array encoded, written and freed in turn: one encoded section in memory at a time
+  // (one full expression kept every temporary string alive to its end)
+  std::vector<std::int64_t>().swap(slot);
   o << "    <CURVED" << kB64ZAttrs << ">\n";
   if (!einfo.empty()) o << "      <E>" << nektar::encode(einfo) << "</E>\n";
+  std::vector<nektar::CurvedInfo>().swap(einfo);
   if (!finfo.empty()) o << "      <F>" << nektar::encode(finfo) << "</F>\n";
-  o << "      <DATAPOINTS ID=\"0\">\n        <INDEX>" << nektar::encode(index) << "</INDEX>\n        <POINTS>" << nektar::encode(pts)
-    << "</POINTS>\n      </DATAPOINTS>\n    </CURVED>\n";
+  std::vector<nektar::CurvedInfo>().swap(finfo);
+  o << "      <DATAPOINTS ID=\"0\">\n        <INDEX>" << nektar::encode(index) << "</INDEX>\n";
+  std::vector<std::int64_t>().swap(index);
+  o << "        <POINTS>" << nektar::encode(pts) << "</POINTS>\n      </DATAPOINTS>\n    </CURVED>\n";
 }
 
 // --- composites, domain, expansions ---

@@ -10,6 +10,7 @@
 #include <cstdint>
 #include <cstring>
 #include <fstream>
+#include <functional>
 #include <sstream>
 #include <string>
 #include <string_view>
@@ -67,16 +68,36 @@ class FileBytes {
   FileBytes(const FileBytes&) = delete;
   FileBytes& operator=(const FileBytes&) = delete;
   std::string_view view() const { return map_ ? std::string_view(static_cast<const char*>(map_), size_) : std::string_view(copy_); }
+  // The mapped pages before byte `pos` (whole pages) are dropped from memory: a reader that has
+  // parsed them holds the mesh, not the file as well (Rotor 67's 1.08 GB MSH read: 2.66 GB peak
+  // RSS with the whole file resident). Reading them again faults them in from the file (a
+  // private read-only mapping); a copied file keeps its bytes.
+  void release_before(size_t pos) const {
+    if (!map_) return;
+    static const size_t page = static_cast<size_t>(::sysconf(_SC_PAGESIZE));
+    const size_t end = std::min(pos, size_) / page * page;
+    if (end <= released_) return;
+    ::madvise(static_cast<char*>(map_) + released_, end - released_, MADV_DONTNEED);
+    released_ = end;
+  }
 
  private:
   void* map_ = nullptr;
   size_t size_ = 0;
+  mutable size_t released_ = 0;
   std::string copy_;
 };
 
 class Cursor {
  public:
   Cursor(std::string path, std::string_view data) : path_(std::move(path)), d_(data) {}
+  // Where the reader is done with the bytes before the current position (a section or block
+  // parsed): `release` (FileBytes::release_before) may drop them from memory.
+  void on_done(std::function<void(size_t)> release) { release_ = std::move(release); }
+  void done_before_here() const { done_before(pos_); }
+  void done_before(size_t p) const {
+    if (release_) release_(p);
+  }
   size_t pos() const { return pos_; }
   void seek(size_t p) { pos_ = p; }
   bool eof() const { return pos_ >= d_.size(); }
@@ -151,6 +172,7 @@ class Cursor {
   std::string path_;
   std::string_view d_;
   size_t pos_ = 0;
+  std::function<void(size_t)> release_;
 };
 
 }  // namespace meshflow::io::detail

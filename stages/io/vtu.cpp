@@ -9,6 +9,7 @@
 #include <cstring>
 #include <fstream>
 #include <map>
+#include <functional>
 #include <set>
 #include <tuple>
 
@@ -17,11 +18,12 @@ namespace meshflow::io {
 using namespace model;
 
 namespace {
+// One appended array as the file holds it: its byte count (UInt64), then its bytes.
 template <class T>
-void append(std::string& s, const std::vector<T>& v) {
-  std::uint64_t n = v.size() * sizeof(T);
-  s.append(reinterpret_cast<const char*>(&n), 8);
-  s.append(reinterpret_cast<const char*>(v.data()), n);
+void write_appended(std::ofstream& f, const std::vector<T>& v) {
+  const std::uint64_t n = v.size() * sizeof(T);
+  f.write(reinterpret_cast<const char*>(&n), 8);
+  f.write(reinterpret_cast<const char*>(v.data()), static_cast<std::streamsize>(n));
 }
 std::string attr(const std::string& tag, const std::string& name) {
   auto p = tag.find(" " + name + "=\"");
@@ -46,6 +48,16 @@ void write_vtu(const Mesh& m, const std::filesystem::path& path, const MeshQuali
   std::vector<std::int32_t> gtype, edim, etag, phys, order;
   std::vector<double> sj;
   std::set<std::int32_t> linearised;  // VTK cell types written with their vertices only
+  {  // sized before they are filled (a doubling vector holds both copies while it moves)
+    std::size_t cells = 0, nconn = 0;
+    for (const auto& b : m.blocks)
+      cells += b.size(), nconn += b.size() * std::size_t(vtk_cell_type(b.shape, b.order) ? b.nodes_per_element() : 5);
+    conn.reserve(nconn);
+    for (auto* v : {&offs}) v->reserve(cells);
+    for (auto* v : {&types, &valid}) v->reserve(cells);
+    for (auto* v : {&gtype, &edim, &etag, &phys, &order}) v->reserve(cells);
+    sj.reserve(cells);
+  }
   for (size_t bi = 0; bi < m.blocks.size(); ++bi) {
     const auto& b = m.blocks[bi];
     int vt = vtk_cell_type(b.shape, b.order);
@@ -87,23 +99,29 @@ void write_vtu(const Mesh& m, const std::filesystem::path& path, const MeshQuali
       valid.push_back(q ? quality[bi][e].valid : 1);
     }
   }
-  std::string head, data;
+  // The header names each array's offset in the appended data (its byte count and bytes, in
+  // order), known from the sizes alone: the header is written first, then each array straight
+  // from its vector (an appended-data string held a second copy of the whole file)
+  std::string head;
   size_t off = 0;
+  std::vector<std::function<void(std::ofstream&)>> appended;
+  auto add = [&](const auto& v) {
+    appended.push_back([&v](std::ofstream& f) { write_appended(f, v); });
+    off += 8 + v.size() * sizeof(v[0]);
+  };
   auto arr = [&](const char* type, const char* name, int comps, auto& v) {
     head += std::string("        <DataArray type=\"") + type + "\"" + (name ? std::string(" Name=\"") + name + "\"" : "") +
             (comps > 1 ? " NumberOfComponents=\"" + std::to_string(comps) + "\"" : "") +
             " format=\"appended\" offset=\"" + std::to_string(off) + "\"/>\n";
-    append(data, v);
-    off = data.size();
+    add(v);
   };
   head += "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">\n";
   head += "  <UnstructuredGrid>\n";
+  const std::vector<std::int32_t> types_linearised(linearised.begin(), linearised.end());
   if (!linearised.empty()) {
-    const std::vector<std::int32_t> types_linearised(linearised.begin(), linearised.end());
     head += "    <FieldData>\n        <DataArray type=\"Int32\" Name=\"meshflow_linearised_cells\" NumberOfTuples=\"" +
             std::to_string(types_linearised.size()) + "\" format=\"appended\" offset=\"" + std::to_string(off) + "\"/>\n    </FieldData>\n";
-    append(data, types_linearised);
-    off = data.size();
+    add(types_linearised);
   }
   head += "    <Piece NumberOfPoints=\"" + std::to_string(m.num_nodes()) + "\" NumberOfCells=\"" +
           std::to_string(types.size()) + "\">\n      <Points>\n";
@@ -124,7 +142,7 @@ void write_vtu(const Mesh& m, const std::filesystem::path& path, const MeshQuali
   std::ofstream f(path, std::ios::binary);
   if (!f) throw MeshIOError(path.string() + ": cannot open the file for writing");
   f << head;
-  f.write(data.data(), (std::streamsize)data.size());
+  for (auto& w : appended) w(f);
   f << "\n  </AppendedData>\n</VTKFile>\n";
   if (!f) throw MeshIOError(path.string() + ": write failed (disk full?)");
 }

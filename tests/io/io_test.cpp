@@ -5,6 +5,7 @@
 #include "engine/artifact_type.hpp"
 #include "engine/command.hpp"
 #include "stages/io/mesh_io.hpp"
+#include "stages/io/reader.hpp"
 #include "stages/model/basis.hpp"
 #include "stages/model/quality.hpp"
 
@@ -902,4 +903,56 @@ TEST_CASE("mesh_quality artifact: the VTU writer given the stage's stored qualit
     o.write(bytes.data(), (std::streamsize)bytes.size() - 3);
   }
   CHECK_THROWS_AS(io::read_quality(qa, a), io::MeshIOError);
+}
+
+namespace {
+// resident set size of this process, in bytes (/proc/self/statm: pages)
+std::size_t rss_bytes() {
+  std::ifstream f("/proc/self/statm");
+  std::size_t size = 0, resident = 0;
+  f >> size >> resident;
+  return resident * static_cast<std::size_t>(::sysconf(_SC_PAGESIZE));
+}
+}  // namespace
+
+TEST_CASE("reading: a mapped file's parsed pages leave memory (release_before), the bytes read the same after") {
+  const fs::path p = fs::temp_directory_path() / ("meshflow_release_" + std::to_string(::getpid()) + ".bin");
+  const std::size_t n = 64u << 20;
+  {
+    std::ofstream o(p, std::ios::binary);
+    std::string block(1u << 20, '\0');
+    for (std::size_t b = 0; b < n / block.size(); ++b) {
+      for (std::size_t i = 0; i < block.size(); ++i) block[i] = char((b * 131 + i * 7) & 0xff);
+      o.write(block.data(), std::streamsize(block.size()));
+    }
+  }
+  auto sum = [](std::string_view v) {
+    std::uint64_t s = 0;
+    for (std::size_t i = 0; i < v.size(); i += 4093) s = s * 31 + static_cast<unsigned char>(v[i]);
+    return s;
+  };
+  {
+    const io::detail::FileBytes data(p);
+    const std::uint64_t before = sum(data.view());
+    const std::size_t mapped = rss_bytes();
+    data.release_before(n / 2);
+    const std::size_t half = rss_bytes();
+    data.release_before(n);
+    const std::size_t none = rss_bytes();
+    MESSAGE("RSS mapped " << mapped / 1048576 << " MB, half released " << half / 1048576 << " MB, all " << none / 1048576 << " MB");
+    CHECK(mapped - half >= n / 2 - (1u << 20));  // the first half's pages left the process
+    CHECK(mapped - none >= n - (1u << 20));
+    CHECK(sum(data.view()) == before);  // read again: the same bytes, faulted in from the file
+  }
+  // the Cursor's hook: a reader calls done_before_here() where it has parsed everything before
+  {
+    const io::detail::FileBytes data(p);
+    io::detail::Cursor c(p.string(), data.view());
+    std::size_t asked = 0;
+    c.on_done([&](std::size_t pos) { asked = pos, data.release_before(pos); });
+    c.seek(n / 4);
+    c.done_before_here();
+    CHECK(asked == n / 4);
+  }
+  fs::remove(p);
 }
