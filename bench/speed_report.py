@@ -90,7 +90,8 @@ for key, name, title, goal in (("dlr", "dlr", "DLR-F6 (`workflows/wing_body.yaml
     rows.append((title, f"**{t[0]:.0f} s**{us} ({verdict(rep)}, load {t[3]})", f"<= {goal} s",
                  "met" if t[2] == 0 and t[0] <= goal else "not met", "one run"))
     stages = sorted(((s["seconds"], s["name"]) for s in (rep or {}).get("stages", [])), reverse=True)[:4]
-    notes.append(f"{title}, longest stages: " + ", ".join(f"{n} {s:.1f} s" for s, n in stages))
+    notes.append(f"{title}, longest stages: " + ", ".join(f"{n} {s:.1f} s" for s, n in stages) +
+                 f"; the whole run's peak RSS (GNU time: the largest stage process or the out/ writers) {t[1]:.0f} MB")
     if key == "rotor":
         sp = stage(rep, "split")
         mb = sp.get("peak_rss_mb") if sp else None
