@@ -53,10 +53,8 @@ void write_vtu(const Mesh& m, const std::filesystem::path& path, const MeshQuali
     for (const auto& b : m.blocks)
       cells += b.size(), nconn += b.size() * std::size_t(vtk_cell_type(b.shape, b.order) ? b.nodes_per_element() : 5);
     conn.reserve(nconn);
-    for (auto* v : {&offs}) v->reserve(cells);
-    for (auto* v : {&types, &valid}) v->reserve(cells);
-    for (auto* v : {&gtype, &edim, &etag, &phys, &order}) v->reserve(cells);
-    sj.reserve(cells);
+    offs.reserve(cells), types.reserve(cells), valid.reserve(cells), sj.reserve(cells);
+    gtype.reserve(cells), edim.reserve(cells), etag.reserve(cells), phys.reserve(cells), order.reserve(cells);
   }
   for (size_t bi = 0; bi < m.blocks.size(); ++bi) {
     const auto& b = m.blocks[bi];

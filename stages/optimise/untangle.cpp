@@ -900,15 +900,10 @@ bool folded_wall_face(const State& S, const ElemRef& r) {
       double J[9], JL[9];
       model::jacobian(basis, X.data(), xi, J);
       model::jacobian(lin, XL.data(), xi, JL);
-      auto normal = [](const double* A, double n[3]) {
-        n[0] = A[3] * A[7] - A[6] * A[4];
-        n[1] = A[6] * A[1] - A[0] * A[7];
-        n[2] = A[0] * A[4] - A[3] * A[1];
-      };
-      double n[3], nl[3];
-      normal(J, n);
-      normal(JL, nl);
-      if (n[0] * nl[0] + n[1] * nl[1] + n[2] * nl[2] <= 0) return true;
+      // the straight face's normal (its Jacobian's columns crossed); the curved face's normal
+      // against it is the 2D Jacobian determinant of the model's validity check
+      const double nl[3] = {JL[3] * JL[7] - JL[6] * JL[4], JL[6] * JL[1] - JL[0] * JL[7], JL[0] * JL[4] - JL[3] * JL[1]};
+      if (model::jacobian_determinant(2, J, nl) <= 0) return true;
     }
   }
   return false;
