@@ -55,6 +55,7 @@ void run(StageContext& ctx) {
     UntangleOptions uo;
     uo.max_rings = p.value("untangle_rings", 3);
     uo.surface = p.value("untangle_surface", true);
+    uo.lift = p.value("untangle_lift", true);
     uo.element_budget = 1e6 * p.value("untangle_element_budget", 200.0);
     uo.stage_budget = 1e6 * p.value("untangle_budget", 40.0);
     uo.time_limit = p.value("untangle_time_limit", 1800.0);
@@ -120,7 +121,7 @@ void run(StageContext& ctx) {
 }
 
 StageRegistrar reg({.kind = "optimise",
-                    .version = 6,  // 5: also stores the mesh's per-element quality ("quality"); 6: a folded wall face slides first
+                    .version = 7,  // 5: also stores the mesh's per-element quality ("quality"); 6: a folded wall face slides first; 7: the lift
                     .summary = "surface node optimisation: spring energy of high-order edges/faces in CAD parameter space, bounded L-BFGS-B, validity kept",
                     .libraries = {"LBFGSpp 0.1.0"},
                     .needs = {"mesh", "shape"},

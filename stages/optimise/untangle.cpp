@@ -8,7 +8,10 @@
 #include "stages/model/quality.hpp"
 
 #include <Eigen/Core>
+#include <Eigen/Eigenvalues>
 #include <Eigen/LU>
+#include <Eigen/SparseCholesky>
+#include <Eigen/SparseCore>
 #include <LBFGS.h>
 #include <nlohmann/json.hpp>
 #include <tbb/blocked_range.h>
@@ -50,6 +53,7 @@ nlohmann::json UntangleReport::to_json() const {
           {"surface_nodes_moved", surface_nodes_moved},
           {"repaired_sliding_on_cad", repaired_sliding},
           {"folded_wall_faces", folded_wall},
+          {"lift", {{"computed", lifts}, {"repaired", repaired_by_lift}, {"started_from", lift_starts}}},
           {"max_move_relative", max_move},
           {"work", {{"jacobian_samples", work}, {"max_per_element", max_element_work}, {"repairs", repair_work}}},
           {"budget", {{"elements_exhausted", budget_exhausted}, {"no_progress_stop", stage_budget_exhausted},
@@ -483,6 +487,7 @@ struct Topology {
   bool volume = false;                // a 3D mesh (else there is nothing to untangle)
   std::vector<char> fixed;            // never moves: a vertex, on the CAD, on a lower-dimensional element or a pyramid
   std::vector<char> slides;           // inside a CAD face and may slide on it (the second mode)
+  std::vector<char> layered;          // a node of a prism or hex (the boundary layer): the lift holds it
   std::vector<std::uint32_t> start;   // node -> its 3D elements (CSR: adj[start[v] .. start[v + 1]])
   std::vector<ElemRef> adj;
 };
@@ -492,6 +497,7 @@ Topology build_topology(const Mesh& m, const UntangleOptions& opt, const cad::Sh
   const int dim = m.dimension();
   const std::size_t N = m.num_nodes();
   t.fixed.assign(N, 0);
+  t.layered.assign(N, 0);
   t.start.assign(N + 1, 0);
   for (std::uint32_t bi = 0; bi < m.blocks.size(); ++bi) {
     const auto& b = m.blocks[bi];
@@ -501,6 +507,7 @@ Topology build_topology(const Mesh& m, const UntangleOptions& opt, const cad::Sh
       const std::uint32_t* en = b.element(e);
       for (int a = 0; a < n; ++a) {
         if (!vol || a < nv || b.shape == Shape::Pyramid) t.fixed[en[a]] = 1;
+        if (vol && (b.shape == Shape::Prism || b.shape == Shape::Hex)) t.layered[en[a]] = 1;
         if (vol) ++t.start[en[a] + 1];
       }
     }
@@ -632,6 +639,8 @@ struct ElementRun {
   enum Kind : std::uint8_t { not_run, already_valid, in_failed_patch, tried } kind = not_run;
   bool repaired = false, sliding = false;
   bool folded = false;  // a wall face folded on the CAD: sliding was tried first
+  bool by_lift = false;  // repaired by the lift alone (no L-BFGS)
+  std::size_t lifts = 0, lift_starts = 0;  // lifts computed; attempts started from one
   int ring = 0;
   Why why = none;  // tried, not repaired
   double work = 0;
@@ -739,7 +748,158 @@ void set_floors(const State& S, const ElemRef& bad, Patch& P) {
   }
 }
 
-// One L-BFGS attempt on the patch from its start (attempt 0, 1, 2: the lattices of
+// ── The lift ("lift" in untangle.hpp) ──────────────────────────────────────────────────────
+// Each node's straight position, the linear (multilinear) map of its element's vertices at the
+// node's reference point: W (nodes x vertices) with X_straight = W X_vertices. Cached per
+// (shape, order); entries never move once made.
+const Eigen::MatrixXd& straight_weights(Shape s, int order) {
+  static std::mutex mutex;
+  static std::map<std::pair<int, int>, Eigen::MatrixXd> cache;
+  std::lock_guard<std::mutex> lock(mutex);
+  auto it = cache.find({int(s), order});
+  if (it != cache.end()) return it->second;
+  const auto& lin = model::LagrangeBasis::get(s, 1);
+  const auto& ref = model::reference_nodes(s, order);
+  Eigen::MatrixXd W(Eigen::Index(ref.size()), lin.size());
+  std::vector<double> L(std::size_t(lin.size()));
+  for (std::size_t a = 0; a < ref.size(); ++a) {
+    lin.eval(ref[a], L.data());
+    for (int v = 0; v < lin.size(); ++v) W(Eigen::Index(a), v) = L[std::size_t(v)];
+  }
+  return cache.emplace(std::make_pair(int(s), order), std::move(W)).first->second;
+}
+
+// Gauss-Legendre points and weights on [0, 1] (Golub-Welsch: the eigenvalues of the Jacobi
+// matrix of the Legendre recurrence and the first components of their eigenvectors).
+std::pair<std::vector<double>, std::vector<double>> gauss01(int n) {
+  Eigen::MatrixXd T = Eigen::MatrixXd::Zero(n, n);
+  for (int k = 1; k < n; ++k) T(k, k - 1) = T(k - 1, k) = k / std::sqrt(4.0 * k * k - 1);
+  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> es(T);
+  std::vector<double> x(static_cast<std::size_t>(n), 0.0), w(static_cast<std::size_t>(n), 0.0);
+  for (int k = 0; k < n; ++k) {
+    x[std::size_t(k)] = 0.5 * (es.eigenvalues()[k] + 1);
+    w[std::size_t(k)] = es.eigenvectors()(0, k) * es.eigenvectors()(0, k);  // sums to 1: [0, 1]'s length
+  }
+  return {x, w};
+}
+
+// The lift's quadrature on the reference tet (element.hpp: the unit simplex): n = P + 1 Gauss
+// points per direction of the collapsed (Duffy) coordinates, whose Jacobian the weights carry.
+// Exact for the stiffness of a straight tet (degree 2P - 2 <= 2n - 3 after the collapse), with
+// positive weights (so the stiffness is positive semi-definite); D the basis gradients at the
+// points as in SampleTable.
+struct Quadrature {
+  int n = 0, nq = 0;
+  std::vector<double> w;
+  Eigen::MatrixXd D;  // rows 3 q + c, columns nodes
+};
+const Quadrature& tet_quadrature(int order) {
+  static std::mutex mutex;
+  static std::map<int, Quadrature> cache;
+  std::lock_guard<std::mutex> lock(mutex);
+  auto it = cache.find(order);
+  if (it != cache.end()) return it->second;
+  const auto [g, gw] = gauss01(order + 1);
+  std::vector<model::Vec3> pts;
+  Quadrature q;
+  for (std::size_t i = 0; i < g.size(); ++i)
+    for (std::size_t j = 0; j < g.size(); ++j)
+      for (std::size_t k = 0; k < g.size(); ++k) {  // zeta = c, eta = b (1 - c), xi = a (1 - b) (1 - c)
+        const double a = g[i], b = g[j], c = g[k];
+        pts.push_back({a * (1 - b) * (1 - c), b * (1 - c), c});
+        q.w.push_back(gw[i] * gw[j] * gw[k] * (1 - b) * (1 - c) * (1 - c));
+      }
+  const auto& basis = model::LagrangeBasis::get(Shape::Tet, order);
+  q.n = basis.size();
+  q.nq = int(pts.size());
+  q.D.resize(3 * q.nq, q.n);
+  std::vector<double> dN(3 * std::size_t(q.n));
+  for (int k = 0; k < q.nq; ++k) {
+    basis.grad(pts[std::size_t(k)], dN.data());
+    for (int a = 0; a < q.n; ++a)
+      for (int c = 0; c < 3; ++c) q.D(3 * k + c, a) = dN[3 * std::size_t(a) + c];
+  }
+  return cache.emplace(order, std::move(q)).first->second;
+}
+
+// The harmonic lift of the patch's far field (mode 0: every free node is a volume node): the
+// displacement d = x - x_straight of its free tet nodes that minimises the Dirichlet energy
+// sum_e int |grad d|^2 over the straight tets, with every other node held at its displacement now
+// (the curved CAD faces, the boundary layer, the patch's rim). That is the discrete Laplace
+// equation K_ff d_f = -K_fb d_b, one matrix for x, y and z; K_e = sum over tet_quadrature's points
+// of w |det J| B^T B (B the basis gradients in x). The boundary layer's nodes (of prisms and
+// hexes) are held: curving placed them to carry the wall's displacement through the thin layer
+// (curve.hpp, rule 3), and a harmonic field moved by a fraction of a tet's size can invert a
+// prism a hundred times thinner. Eigen's sparse Cholesky (LDL^T) solves it. y: the lift as
+// variables ((x - x0) / h). Charges one Jacobian evaluation per quadrature point. False: no free
+// tet node, a straight tet without volume, or a system that could not be solved (the attempts
+// then start where the patch is).
+bool lift(const State& S, const Patch& P, Budget& B, Eigen::VectorXd& y) {
+  const Mesh& m = S.m;
+  // the lifted nodes: free, not in the boundary layer; lifted[i] = their index, or -1
+  std::vector<int> lifted(P.free.size(), -1);
+  Eigen::Index nl = 0;
+  for (std::size_t i = 0; i < P.free.size(); ++i)
+    if (P.face[i] < 0 && !S.topo.layered[P.free[i]]) lifted[i] = int(nl++);
+  if (nl == 0) return false;
+  double cost = 0;
+  for (const ElemRef& r : P.elems)
+    if (m.blocks[r.block].shape == Shape::Tet) cost += tet_quadrature(m.blocks[r.block].order).nq;
+  B.charge(cost);
+  std::vector<Eigen::Triplet<double>> trip;
+  Eigen::MatrixXd rhs = Eigen::MatrixXd::Zero(nl, 3), xs = Eigen::MatrixXd::Zero(nl, 3);
+  for (std::size_t ie = 0; ie < P.elems.size(); ++ie) {
+    const auto& b = m.blocks[P.elems[ie].block];
+    if (b.shape != Shape::Tet) continue;  // its nodes are held (layered) or fixed (pyramids)
+    const std::uint32_t* en = b.element(P.elems[ie].index);
+    const Quadrature& t = tet_quadrature(b.order);
+    const Eigen::MatrixXd& W = straight_weights(b.shape, b.order);
+    Eigen::MatrixXd Xv(W.cols(), 3);
+    for (Eigen::Index v = 0; v < W.cols(); ++v) Xv(v, 0) = m.x[en[v]], Xv(v, 1) = m.y[en[v]], Xv(v, 2) = m.z[en[v]];
+    const Eigen::MatrixXd Xs = W * Xv;    // straight nodes, n x 3
+    const Eigen::MatrixXd JT = t.D * Xs;  // rows 3 q + c: J^T at point q
+    Eigen::MatrixXd K = Eigen::MatrixXd::Zero(t.n, t.n);
+    for (int q = 0; q < t.nq; ++q) {
+      const Eigen::Matrix3d Jq = JT.block<3, 3>(3 * q, 0);  // J^T
+      const double det = Jq.determinant();
+      if (!(det > 0)) return false;
+      const Eigen::MatrixXd Bq = Jq.inverse() * t.D.middleRows(3 * q, 3);  // J^-T grad_xi N
+      K.noalias() += t.w[std::size_t(q)] * det * Bq.transpose() * Bq;
+    }
+    std::vector<int> li(std::size_t(t.n), -1);
+    for (int a = 0; a < t.n; ++a)
+      if (P.slots[ie][a] >= 0) li[std::size_t(a)] = lifted[std::size_t(P.slots[ie][a])];
+    for (int a = 0; a < t.n; ++a) {
+      const int i = li[std::size_t(a)];
+      if (i < 0) continue;
+      xs.row(i) = Xs.row(a);
+      for (int c = 0; c < t.n; ++c) {
+        if (li[std::size_t(c)] >= 0) {
+          trip.emplace_back(i, li[std::size_t(c)], K(a, c));
+          continue;
+        }
+        const std::uint32_t v = en[c];
+        const Eigen::RowVector3d d(m.x[v] - Xs(c, 0), m.y[v] - Xs(c, 1), m.z[v] - Xs(c, 2));
+        rhs.row(i) -= K(a, c) * d;
+      }
+    }
+  }
+  Eigen::SparseMatrix<double> A(nl, nl);
+  A.setFromTriplets(trip.begin(), trip.end());
+  Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> ldlt(A);
+  if (ldlt.info() != Eigen::Success) return false;
+  const Eigen::MatrixXd d = ldlt.solve(rhs);
+  if (ldlt.info() != Eigen::Success || !d.allFinite()) return false;
+  y.setZero(P.nvars);
+  for (std::size_t i = 0; i < P.free.size(); ++i) {
+    const int k = lifted[i];
+    if (k >= 0)
+      for (int c = 0; c < 3; ++c) y[P.var[i] + c] = (xs(k, c) + d(k, c) - P.x0[3 * i + c]) / P.h;
+  }
+  return true;
+}
+
+// One L-BFGS attempt on the patch from `start` (attempt 0, 1, 2: the lattices of
 // sample_order and the targets of untangle.hpp). out >= 0: a budget ran out (OutOfBudget::Which).
 struct Minimised {
   Eigen::VectorXd y;
@@ -748,7 +908,7 @@ struct Minimised {
   bool early = false;
   int out = -1;
 };
-Minimised minimise(Patch& P, int attempt, const UntangleOptions& opt, Budget& B) {
+Minimised minimise(Patch& P, int attempt, const UntangleOptions& opt, Budget& B, const Eigen::VectorXd& start) {
   LBFGSpp::LBFGSParam<double> param;
   param.m = 8;
   param.epsilon = 1e-10;
@@ -758,7 +918,7 @@ Minimised minimise(Patch& P, int attempt, const UntangleOptions& opt, Budget& B)
   param.max_linesearch = 40;
   LBFGSpp::LBFGSSolver<double> solver(param);
   Minimised r;
-  r.y = Eigen::VectorXd::Zero(P.nvars);
+  r.y = start;
   P.budget = &B;
   // the second and third attempts (denser samples, then det J's Bernstein coefficients)
   // cost up to 10 x the first and often run all their iterations while the patch has been
@@ -863,6 +1023,41 @@ void log_attempt(const State& S, const Patch& P, const ElemRef& bad, int ring, i
     }
 }
 
+void log_lift(const State& S, const Patch& P, const ElemRef& bad, int ring, ElementRun& run) {
+  (void)S;
+  char line[256];
+  std::snprintf(line, sizeof line, "untangle: element %u/%u ring %d: %zu free nodes, %zu elements: repaired by the lift", bad.block,
+                bad.index, ring, P.free.size(), P.elems.size());
+  run.log.push_back(line);
+}
+
+// The lifted patch's element qualities (diagnostic): the invalid element's scaled Jacobian, the
+// lowest of the others and how many of them are invalid, and the penalties at the lift and now.
+void log_lift_rejected(const State& S, const Patch& P, const ElemRef& bad, int ring, const std::vector<double>& xf, double el,
+                       double e0, ElementRun& run) {
+  double own = NAN, others = INFINITY;
+  int invalid = 0, invalid_prisms = 0;
+  std::vector<double> X;
+  for (std::size_t ie = 0; ie < P.elems.size(); ++ie) {
+    const auto& b = S.m.blocks[P.elems[ie].block];
+    const std::uint32_t* nodes = b.element(P.elems[ie].index);
+    X.resize(3 * std::size_t(b.nodes_per_element()));
+    for (int a = 0; a < b.nodes_per_element(); ++a) {
+      const int k = P.slots[ie][a];
+      X[3 * a] = k >= 0 ? xf[3 * k] : S.m.x[nodes[a]];
+      X[3 * a + 1] = k >= 0 ? xf[3 * k + 1] : S.m.y[nodes[a]];
+      X[3 * a + 2] = k >= 0 ? xf[3 * k + 2] : S.m.z[nodes[a]];
+    }
+    const auto q = model::element_quality(b.shape, b.order, X.data());
+    if (P.elems[ie] == bad) own = q.scaled_jacobian;
+    else others = std::min(others, q.scaled_jacobian), invalid += !q.valid, invalid_prisms += !q.valid && b.shape != Shape::Tet;
+  }
+  char line[256];
+  std::snprintf(line, sizeof line, "untangle: element %u/%u ring %d: lift not kept: its scaled J %.3g, others' lowest %.3g (%d invalid, %d not tets); penalty %g at the lift, %g now",
+                bad.block, bad.index, ring, own, others, invalid, invalid_prisms, el, e0);
+  run.log.push_back(line);
+}
+
 // Whether a face of the element that lies on the CAD (every node of it on a CAD entity, one
 // inside a CAD face) is folded: its curved normal n = x_s x x_t turns against the normal of the
 // same face made of its vertices only (the straight face the linear mesh had) at a sample of the
@@ -906,6 +1101,39 @@ bool folded_wall_face(const State& S, const ElemRef& r) {
       if (model::jacobian_determinant(2, J, nl) <= 0) return true;
     }
   }
+  return false;
+}
+
+// The lift of an off-CAD patch ("lift" in untangle.hpp), applied and kept when it passes the early
+// exit's test (the element valid at kEarlyExitFloor, no valid element below its own quality or
+// the floor): true, the element is repaired. Else the patch is as it was, and `start` becomes the
+// lift when its penalty (the first attempt's) is lower than the patch's now. Throws OutOfBudget.
+bool try_lift(State& S, const ElemRef& bad, int ring, Patch& P, Budget& B, ElementRun& run, Eigen::VectorXd& start) {
+  Eigen::VectorXd yl;
+  if (!lift(S, P, B, yl)) return false;
+  ++run.lifts;
+  std::vector<double> xf(P.x0.size());
+  for (std::size_t i = 0; i < xf.size(); ++i) xf[i] = P.x0[i] + P.h * yl[P.var[i / 3] + int(i % 3)];
+  if (P.acceptable(xf)) {
+    apply(S, P, yl);
+    std::vector<std::pair<ElemRef, char>> now;
+    if (accepted(S, P, bad, now)) {
+      if (S.logging) log_lift(S, P, bad, ring, run);
+      keep(S, P, now, run);
+      run.repaired = run.by_lift = true;
+      run.ring = ring;
+      return true;
+    }
+    restore(S, P);
+  }
+  P.target = S.opt.target;
+  P.lattice = 0;
+  P.budget = &B;
+  Eigen::VectorXd g(P.nvars);
+  const double el = P(yl, g), e0 = P(start, g);
+  P.budget = nullptr;
+  if (el < e0) start = yl, ++run.lift_starts;
+  if (S.logging) log_lift_rejected(S, P, bad, ring, xf, el, e0, run);
   return false;
 }
 
@@ -965,6 +1193,19 @@ ElementRun repair_element(State& S, const ElemRef& bad) {
         continue;
       }
       set_floors(S, bad, P);
+      // the lift first (off-CAD patches): kept alone when it passes; else the attempts may start from it
+      Eigen::VectorXd start = Eigen::VectorXd::Zero(P.nvars);
+      if (mode == 0 && opt.lift) {
+        try {
+          if (try_lift(S, bad, ring, P, B, run, start)) {
+            done = true;
+            continue;
+          }
+        } catch (const OutOfBudget& e) {
+          out = e.which;
+          break;
+        }
+      }
       // the target on the coarse samples first, then a higher one on the dense samples: samples
       // just above the target can leave det J negative between them, which the Bezier check
       // finds; then (tets, prisms) half the target on det J's Bernstein coefficients, which see the dips
@@ -978,7 +1219,7 @@ ElementRun repair_element(State& S, const ElemRef& bad) {
         ++run.attempts;
         any_attempt = true;
         const auto ta = std::chrono::steady_clock::now();
-        const Minimised r = minimise(P, attempt, opt, B);
+        const Minimised r = minimise(P, attempt, opt, B, start);
         if (r.out >= 0) {  // give up on this element (or on all: time)
           out = r.out;
           break;
@@ -1101,6 +1342,8 @@ struct Ledger {
     SB.total += run.work;
     SB.stage_used += run.work;
     rep.folded_wall += run.folded;
+    rep.lifts += run.lifts;
+    rep.lift_starts += run.lift_starts;
     rep.attempts += run.attempts;
     rep.early_exits += run.early_exits;
     rep.stuck += run.stuck;
@@ -1114,6 +1357,7 @@ struct Ledger {
       SB.stage_used = 0;  // progress: the no-progress budget starts again
       ++rep.repaired_at_ring[run.ring - 1];
       rep.repaired_sliding += run.sliding;
+      rep.repaired_by_lift += run.by_lift;
       return true;
     }
     why[bad.block][bad.index] = run.why;

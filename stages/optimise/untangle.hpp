@@ -39,6 +39,18 @@
 //           whose optimised edges cross) is repaired this way; the nodes stay on the CAD and the
 //           node parameters are updated. Off-CAD first, so a repair that needs no surface move
 //           makes none.
+//   lift    before the L-BFGS attempts of an off-CAD patch, its free nodes are lifted: the
+//           displacement from the straight element (x - x_straight) that is discrete-harmonic
+//           over the patch's straight elements, held at its current value on every other node
+//           (the curved CAD faces, the shell, the patch's rim). Curving places far-field nodes
+//           element by element (a tet on the curved shell takes the whole bulge alone, its other
+//           edges straight); the lift spreads the boundary's displacement over the patch, the
+//           start Persson & Peraire 2009 and Gmsh's optimiser take from an elastic analogy. When
+//           the lifted patch passes the early exit's test below (the element valid at a scaled
+//           Jacobian of 0.05, no valid element below its own quality or 0.05), it is kept with no
+//           L-BFGS at all (counted: lift.repaired); else the attempts start from it when its
+//           energy is lower than the patch's now (counted: lift.started_from). Its cost is one
+//           lattice evaluation per patch element, charged to the budget.
 //   fold    except for an element with a face on the CAD that is folded: its curved normal turns
 //           against its straight face's normal at a sample (order P + 2). There det J = n . x_w
 //           (x_w the derivative into the element) can be made positive by off-CAD moves only by
@@ -101,6 +113,7 @@ struct UntangleOptions {
   double spring = 0;          // lambda, weight of a displacement spring (0: nodes move only while a sample is below target)
   int max_iterations = 400;   // L-BFGS iterations per patch attempt
   bool surface = true;        // with a shape: try sliding the nodes inside CAD faces when off-CAD moves fail
+  bool lift = true;           // off-CAD patches start from the harmonic lift ("lift" above)
   // Budgets ("budget" above), in Jacobian evaluations at sample points; <= 0 = unlimited.
   double element_budget = 200e6;  // per invalid element, all its patch attempts (DLR-F6 needs 124e6 for one)
   double stage_budget = 40e6;     // since the last repair (no progress; after a repair at least one element budget and the repairs' work), checked between elements
@@ -127,6 +140,7 @@ struct UntangleReport {
   std::size_t attempts = 0, repaired = 0, nodes_moved = 0;
   std::size_t surface_nodes_moved = 0, repaired_sliding = 0;  // nodes slid on CAD faces; patches that needed it
   std::size_t folded_wall = 0;  // tried elements with a wall face folded on the CAD (sliding tried first)
+  std::size_t lifts = 0, repaired_by_lift = 0, lift_starts = 0;  // lifts computed; repairs by one alone; attempts started from one
   std::size_t skipped = 0;  // invalid elements inside the largest patch of one that could not be repaired: not tried
   std::size_t early_exits = 0;  // second/third attempts stopped at the first tested point that was acceptable
   std::size_t stuck = 0;    // patch attempts whose coarse try stayed >= target^2: the harder tries were skipped

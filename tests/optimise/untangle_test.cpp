@@ -441,3 +441,73 @@ TEST_CASE("untangle in parallel: many invalid elements, some with overlapping pa
   for (std::size_t i = 0; i < log1.size(); ++i) CHECK(log1[i].substr(0, log1[i].find(" iterations")) == log2[i].substr(0, log2[i].find(" iterations")));
   CHECK(invalid(a) == r1.invalid_after);
 }
+
+namespace {
+
+// The P=4 cube of cube_tets(3, 4) with its top face (z = 1) curved: every high-order node on it
+// moved down by a * sin(3 pi x) sin(3 pi y), a bulge per cell face that vanishes at the element
+// vertices (x, y multiples of 1/3), down into the cube in half of the cells, as a CAD face
+// pushes the tets under it when curving. Only the top face's nodes move.
+Mesh bulged_cube(double a) {
+  Mesh m = cube_tets(3, 4);
+  const double pi = std::acos(-1.0);
+  for (std::size_t i = 0; i < m.num_nodes(); ++i)
+    if (m.z[i] == 1.0) m.z[i] -= a * std::sin(3 * pi * m.x[i]) * std::sin(3 * pi * m.y[i]);
+  return m;
+}
+
+}  // namespace
+
+TEST_CASE("untangle lift: a node pushed across its tets goes back to its straight place, with no optimisation") {
+  Mesh m = cube_tets(3, 4);
+  const Mesh straight = m;
+  const auto& b = m.blocks[0];
+  std::size_t el = SIZE_MAX;
+  int edge = -1;
+  for (std::size_t e = 0; e < b.size() && el == SIZE_MAX; ++e)
+    for (int k = 0; k < 6; ++k)
+      if (m.node_entity_dim[b.element(e)[model::edge_nodes(Shape::Tet, 4)[k][3]]] == 3) {
+        el = e, edge = k;
+        break;
+      }
+  REQUIRE(el != SIZE_MAX);
+  push_edge_node(m, el, edge, 1.6);
+  REQUIRE(invalid(m) > 0);
+  auto rep = meshflow::optimise::untangle(m, {}, 1);
+  CHECK(rep.invalid_after == 0);
+  CHECK(rep.repaired_by_lift == rep.repaired);
+  CHECK(rep.attempts == 0);  // no L-BFGS attempt
+  CHECK(rep.lifts >= 1);
+  // the boundary data of the lift are straight: its solution is the straight mesh
+  double worst = 0;
+  for (std::size_t i = 0; i < m.num_nodes(); ++i)
+    worst = std::max({worst, std::abs(m.x[i] - straight.x[i]), std::abs(m.y[i] - straight.y[i]), std::abs(m.z[i] - straight.z[i])});
+  CHECK(worst < 1e-12);
+}
+
+TEST_CASE("untangle lift: tets under a curved face are repaired by the lift alone, with less work than the optimisation, nothing on the face moves") {
+  const Mesh start = bulged_cube(0.06);
+  const std::size_t bad = invalid(start);
+  REQUIRE(bad > 0);
+  Mesh with = start, without = start;
+  meshflow::optimise::UntangleOptions off;
+  off.lift = false;
+  const auto r1 = meshflow::optimise::untangle(with, {}, 1);
+  const auto r0 = meshflow::optimise::untangle(without, off, 1);
+  MESSAGE("lift: " << r1.invalid_before << " -> " << r1.invalid_after << " invalid, " << r1.repaired_by_lift << " of " << r1.repaired
+                   << " repairs by the lift alone, " << r1.attempts << " attempts, work " << r1.work << "; without: " << r0.invalid_after
+                   << " invalid, " << r0.attempts << " attempts, work " << r0.work);
+  CHECK(r1.invalid_before == bad);
+  CHECK(r1.invalid_after == 0);
+  CHECK(invalid(with) == 0);
+  CHECK(r1.repaired_by_lift > 0);
+  CHECK(r0.repaired_by_lift == 0);
+  CHECK(r0.lifts == 0);
+  CHECK(r1.work < r0.work);
+  for (std::size_t i = 0; i < start.num_nodes(); ++i)
+    if (start.node_entity_dim[i] != 3) {
+      CHECK(with.x[i] == start.x[i]);
+      CHECK(with.y[i] == start.y[i]);
+      CHECK(with.z[i] == start.z[i]);
+    }
+}
