@@ -4,6 +4,7 @@
 
 #include "stages/cad/cad.hpp"
 
+#include <BRepTopAdaptor_FClass2d.hxx>
 #include <Geom_Curve.hxx>
 #include <Geom_Surface.hxx>
 #include <Message_Printer.hxx>
@@ -21,7 +22,8 @@
 #include <nlohmann/json_fwd.hpp>
 
 #include <functional>
-#include <vector>
+#include <map>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -43,6 +45,8 @@ struct Shape::Impl {
     std::vector<double> u, v;
   };
   mutable std::vector<Seeds> face_seeds;  // a grid over the face's (u,v) bounds: start points
+  // point-in-face classifiers, by face id and tolerance (face_contains_uv)
+  mutable std::vector<std::map<double, std::unique_ptr<BRepTopAdaptor_FClass2d>>> face_class;
 
   // Builds the maps and geometry caches from `shape`; tags sized to the faces (none).
   void index();
