@@ -39,18 +39,20 @@
 //           whose optimised edges cross) is repaired this way; the nodes stay on the CAD and the
 //           node parameters are updated. Off-CAD first, so a repair that needs no surface move
 //           makes none.
-//   lift    before the L-BFGS attempts of an off-CAD patch, its free nodes are lifted: the
+//   lift    before the L-BFGS attempts of an off-CAD patch, its free tet nodes are lifted: the
 //           displacement from the straight element (x - x_straight) that is discrete-harmonic
-//           over the patch's straight elements, held at its current value on every other node
-//           (the curved CAD faces, the shell, the patch's rim). Curving places far-field nodes
-//           element by element (a tet on the curved shell takes the whole bulge alone, its other
-//           edges straight); the lift spreads the boundary's displacement over the patch, the
-//           start Persson & Peraire 2009 and Gmsh's optimiser take from an elastic analogy. When
-//           the lifted patch passes the early exit's test below (the element valid at a scaled
-//           Jacobian of 0.05, no valid element below its own quality or 0.05), it is kept with no
-//           L-BFGS at all (counted: lift.repaired); else the attempts start from it when its
-//           energy is lower than the patch's now (counted: lift.started_from). Its cost is one
-//           lattice evaluation per patch element, charged to the budget.
+//           over the patch's straight tets, held at its current value on every other node (the
+//           curved CAD faces, the patch's rim, and the boundary layer's prism and hex nodes,
+//           which curving's rule 3 placed to carry the wall's displacement through the layer).
+//           Curving places far-field nodes element by element (a tet on the curved shell takes
+//           the whole bulge alone, its other edges straight); the lift spreads the boundary's
+//           displacement over the patch, the start Persson & Peraire 2009 and Gmsh's optimiser
+//           take from an elastic analogy. When the lifted patch passes the early exit's test
+//           below (the element valid at a scaled Jacobian of 0.05, no valid element below its
+//           own quality or 0.05), it is kept with no L-BFGS at all (counted: lift.repaired);
+//           else the attempts start from it when its penalty is lower than the patch's now
+//           (counted: lift.started_from). Its cost, one Jacobian evaluation per quadrature point
+//           of each patch tet and two penalty evaluations, is charged to the budget.
 //   fold    except for an element with a face on the CAD that is folded: its curved normal turns
 //           against its straight face's normal at a sample (order P + 2). There det J = n . x_w
 //           (x_w the derivative into the element) can be made positive by off-CAD moves only by
