@@ -29,8 +29,8 @@
 //     auto pr2 = shape.project_to_face(f, p2, {{pr.u, pr.v}});   // faster with a hint
 //   }
 //
-// Thread safety: all const queries may run concurrently EXCEPT the project_* functions,
-// which fill lazy per-face/per-edge caches. For parallel projection give each thread its own
+// Thread safety: all const queries may run concurrently EXCEPT the project_* functions and
+// face_contains_uv, which fill lazy per-face/per-edge caches. For parallel projection give each thread its own
 // copy: `Shape mine = shape.clone();` (cheap: geometry is shared, caches are not).
 //
 // Errors: load() throws meshflow::StageError (file, what is wrong, what to do); an id out of
