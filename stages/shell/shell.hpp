@@ -212,8 +212,9 @@ struct IntersectionReport {
   std::vector<std::array<int, 2>> examples;  // up to 10 pairs
   std::vector<std::array<int, 2>> all;       // every pair (triangle indices), in report order
 };
+// `threads` > 1: the triangles are tested in parallel, the report is the same at any count.
 IntersectionReport self_intersections(const std::vector<Vec3>& points,
-                                      const std::vector<std::array<std::int32_t, 3>>& tris);
+                                      const std::vector<std::array<std::int32_t, 3>>& tris, int threads = 1);
 
 // Constrained Delaunay triangulation (CGAL, 2D) of points with constrained segments (index
 // pairs): all triangles of the convex hull as index triples, counter-clockwise, sorted. With

@@ -11,6 +11,10 @@
 #include <CGAL/Triangulation_vertex_base_with_info_2.h>
 #include <CGAL/Constrained_triangulation_face_base_2.h>
 #include <CGAL/Triangulation_face_base_with_info_2.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
 #include <stdexcept>
 
 #include <algorithm>
@@ -28,9 +32,10 @@ using Tree = CGAL::AABB_tree<CGAL::AABB_traits<K, Prim>>;
 
 // Every pair of triangles that do not share a vertex index and intersect (exact predicate,
 // CGAL::do_intersect on Triangle_3 with filtered exact predicates). Degenerate triangles are
-// skipped. Deterministic: pairs are reported in (i, j) order, i < j.
+// skipped. Deterministic: pairs are reported in (i, j) order, i < j, at any thread count (each
+// triangle's partners are found in parallel into its own slot, then reported in order).
 IntersectionReport self_intersections(const std::vector<Vec3>& points,
-                                      const std::vector<std::array<std::int32_t, 3>>& tris) {
+                                      const std::vector<std::array<std::int32_t, 3>>& tris, int threads) {
   IntersectionReport rep;
   std::vector<Tri> T;
   std::vector<int> id;
@@ -53,11 +58,12 @@ IntersectionReport self_intersections(const std::vector<Vec3>& points,
   // the tree with the triangle itself ran that test on every neighbour: about half of the wing's
   // shell stage (bench/results/profile/wingtip_step.shell.txt: self_intersections 47%, 16% in
   // exception unwinding). The pairs found are the same.
-  std::vector<Prim::Id> hits;
-  for (std::size_t k = 0; k < T.size(); ++k) {
-    hits.clear();
+  tree.build();  // built before the queries, which may then run concurrently
+  std::vector<std::vector<int>> partners(T.size());
+  auto find_partners = [&](std::size_t k) {
+    std::vector<Prim::Id> hits;
     tree.all_intersected_primitives(T[k].bbox(), std::back_inserter(hits));
-    std::vector<int> js;
+    std::vector<int>& js = partners[k];
     for (auto h : hits) {
       std::size_t j = static_cast<std::size_t>(h - T.cbegin());
       if (j <= k) continue;
@@ -70,7 +76,19 @@ IntersectionReport self_intersections(const std::vector<Vec3>& points,
       js.push_back(static_cast<int>(j));
     }
     std::sort(js.begin(), js.end());
-    for (int j : js) {
+  };
+  if (threads > 1 && T.size() >= 512) {
+    tbb::task_arena arena(threads);
+    arena.execute([&] {
+      tbb::parallel_for(tbb::blocked_range<std::size_t>(0, T.size(), 256), [&](const tbb::blocked_range<std::size_t>& r) {
+        for (std::size_t k = r.begin(); k != r.end(); ++k) find_partners(k);
+      });
+    });
+  } else {
+    for (std::size_t k = 0; k < T.size(); ++k) find_partners(k);
+  }
+  for (std::size_t k = 0; k < T.size(); ++k) {
+    for (int j : partners[k]) {
       if (rep.pairs == 0) {
         auto& a = tris[id[k]];
         for (int c = 0; c < 3; ++c)

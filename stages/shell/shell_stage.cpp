@@ -10,6 +10,10 @@
 
 #include <CGAL/version_macros.h>  // version string only (no CGAL code)
 #include <nlohmann/json.hpp>
+#include <tbb/blocked_range.h>
+#include <tbb/enumerable_thread_specific.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 
 #include <algorithm>
 #include <array>
@@ -45,6 +49,26 @@ std::string fmt(Vec3 p) {
   return o.str();
 }
 double now() { return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count(); }
+
+// body(mine, i) for every i in [0, n) on `threads` threads, each working on its own clone of
+// `shape` (its projections fill lazy caches, see cad.hpp). The body writes per-index slots only
+// and the caller reduces them in index order, so the result does not depend on the thread count.
+template <class Body>
+void for_each_index(const cad::Shape& shape, int threads, std::size_t n, Body&& body) {
+  if (threads <= 1 || n < 256) {
+    cad::Shape mine = shape.clone();
+    for (std::size_t i = 0; i < n; ++i) body(mine, i);
+    return;
+  }
+  tbb::enumerable_thread_specific<cad::Shape> clones([&] { return shape.clone(); });
+  tbb::task_arena arena(threads);
+  arena.execute([&] {
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 64), [&](const tbb::blocked_range<std::size_t>& r) {
+      cad::Shape& mine = clones.local();
+      for (std::size_t i = r.begin(); i != r.end(); ++i) body(mine, i);
+    });
+  });
+}
 
 enum class EdgeKind { none, seam, wall_wall, wall_other };
 
@@ -1748,21 +1772,27 @@ struct Stage {
       clear_widx = std::make_unique<medial::NearestIndex>(wp);
       if (!fp.empty()) clear_fidx = std::make_unique<medial::NearestIndex>(fp);
     }
-    for (std::size_t q = 0; q < out.shell_points.size(); ++q) {
+    // per point: distance to the walls and to the far field (in parallel), then reduced in
+    // point order (the first nearest point wins on ties, at any thread count)
+    const std::size_t n = out.shell_points.size();
+    std::vector<double> dw(n), df(n, INFINITY);
+    for_each_index(shape, ctx.threads(), n, [&](cad::Shape& mine, std::size_t q) {
       const Vec3& x = out.shell_points[q];
       auto [j, d] = clear_widx->nearest(x, 1)[0];
       const auto& s = M.samples[clear_wi[j]];
       if (s.kind == 0) {  // refine by projection on the sample's face
-        auto pr = shape.project_to_face(s.id, cv(x), cad::Vec2{s.u, s.v});
-        if (pr.distance < d && shape.face_contains_uv(s.id, pr.u, pr.v, 1e-7)) d = pr.distance;
+        auto pr = mine.project_to_face(s.id, cv(x), cad::Vec2{s.u, s.v});
+        if (pr.distance < d && mine.face_contains_uv(s.id, pr.u, pr.v, 1e-7)) d = pr.distance;
       }
-      if (d < c.wall) c.wall = d, c.at_wall = x;
+      dw[q] = d;
+      if (clear_fidx) df[q] = clear_fidx->nearest(x, 1)[0].second;
+    });
+    for (std::size_t q = 0; q < n; ++q) {
+      const Vec3& x = out.shell_points[q];
+      if (dw[q] < c.wall) c.wall = dw[q], c.at_wall = x;
       double tq = norm(sub(x, out.shell_wall[q]));
-      if (tq > 0) c.rel_wall = std::min(c.rel_wall, d / tq);
-      if (clear_fidx) {
-        auto [jf, df] = clear_fidx->nearest(x, 1)[0];
-        if (df < c.far) c.far = df, c.at_far = x;
-      }
+      if (tq > 0) c.rel_wall = std::min(c.rel_wall, dw[q] / tq);
+      if (df[q] < c.far) c.far = df[q], c.at_far = x;
     }
     return c;
   }
@@ -1871,7 +1901,7 @@ struct Stage {
       if (!label.empty()) ctx.progress(0.7, "sampled shell surface");
       sample_surface();
       if (!label.empty()) ctx.progress(0.85, "checks");
-      inter = self_intersections(out.shell_points, out.shell_tris);
+      inter = self_intersections(out.shell_points, out.shell_tris, ctx.threads());
       cl_last.reset();
     };
     for (bool final = false;;) {
