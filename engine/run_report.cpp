@@ -162,6 +162,10 @@ std::string stage_section_html(const json& report, const json& st, const Artifac
     in.delivered = delivered(report, in.stage, in.artifact, in.digest);
     in.invalid = in.status == "invalid";
     in.threads = threads;
+    if (locate)
+      for (auto& b : st.value("outputs", json::array()))
+        if (str(b, "name") != in.artifact)
+          if (fs::path p = locate(str(b, "digest")); !p.empty()) in.companions.push_back({str(b, "name"), str(b, "type"), p});
     try {
       body += (*rep)(in);
     } catch (const std::exception& e) {

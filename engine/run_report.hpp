@@ -21,6 +21,7 @@
 #include <functional>
 #include <string>
 #include <string_view>
+#include <vector>
 
 namespace meshflow {
 
@@ -35,6 +36,13 @@ struct ArtifactReportInput {
   bool delivered = false;  // an output of the run (materialised in out/)
   bool invalid = false;    // the stage's result breaks its contract (status "invalid")
   int threads = 1;
+  // The stage's other artifacts that are at hand (bytes verified), e.g. the per-element quality
+  // a mesh stage stores beside its mesh: what the report may read instead of computing again.
+  struct Companion {
+    std::string name, type;
+    std::filesystem::path path;
+  };
+  std::vector<Companion> companions;
 };
 
 // Returns an HTML fragment: no <script>, no external references (inline SVG, data: URIs).

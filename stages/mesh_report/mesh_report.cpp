@@ -281,6 +281,16 @@ std::string marked_figures(Scene& scene, const std::vector<Listed>& listed) {
 std::string pictures_html(const ArtifactReportInput& in, const std::vector<Listed>& listed, bool all) {
   model::Mesh mesh = io::read_mesh(in.path);
   Scene scene(mesh, in.threads);
+  // the quality the stage stored beside the mesh (the contract's), not computed a second time
+  for (auto& c : in.companions)
+    if (c.type == "mesh_quality") {
+      try {
+        scene.use_quality(io::read_quality(c.path, mesh));
+      } catch (const std::exception&) {
+        // not this mesh's (its blocks differ) or unreadable: computed as needed
+      }
+      break;
+    }
   if (scene.surface().empty()) return "<p class=\"note\">No surface to draw (the mesh has no 2D or 3D elements).</p>\n";
   std::string s;
   if (!listed.empty()) s += "<h4>Where the listed elements are</h4>\n" + marked_figures(scene, listed);

@@ -332,6 +332,14 @@ void Scene::need_quality(const std::vector<std::int64_t>& wanted) {
   });
 }
 
+void Scene::use_quality(const model::MeshQuality& q) {
+  for (std::size_t e = 0; e < elements_.size(); ++e) {
+    const model::ElementQuality& x = q.at(elements_[e].block).at(elements_[e].element);
+    quality_[e] = {x.scaled_jacobian, x.valid && !x.inconclusive};
+    have_quality_[e] = 1;
+  }
+}
+
 std::vector<std::vector<std::uint32_t>> Scene::element_face_outlines(std::size_t e) const {
   const auto& b = m_.blocks[elements_[e].block];
   std::vector<std::vector<std::uint32_t>> out;

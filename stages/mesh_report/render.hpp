@@ -12,6 +12,7 @@
 
 #include "stages/mesh_report/svg.hpp"
 #include "stages/model/mesh.hpp"
+#include "stages/model/quality.hpp"
 
 #include <cstdint>
 #include <string>
@@ -59,6 +60,9 @@ class Scene {
 
   // Quality of the elements asked for (computed once, in parallel).
   void need_quality(const std::vector<std::int64_t>& elements);
+  // Takes every element's quality from `q` (model::mesh_quality of this mesh, as a stage stored
+  // it: io::read_quality checks that its blocks are the mesh's); need_quality then computes nothing.
+  void use_quality(const model::MeshQuality& q);
   const Quality& quality(std::size_t element) const { return quality_[element]; }
 
   // The outline loops of every face of an element (for marking it).

@@ -65,24 +65,32 @@ meshflow::StageRegistrar box_reg({
         [](meshflow::StageContext& ctx) {
           auto m = box(ctx.params().value("cells", 4), ctx.params().value("invert", false));
           meshflow::io::write_mesh(m, ctx.output("mesh", "mesh"), meshflow::io::MeshFormat::MshBinary);
-          meshflow::contract::record(ctx, m, meshflow::contract::Extent::NearField, nullptr);
+          auto q = meshflow::contract::record(ctx, m, meshflow::contract::Extent::NearField, nullptr);
+          const std::string stored = ctx.params().value("quality", "none");
+          if (stored == "halved")  // not the mesh's: shows whether the page reads the stored one
+            for (auto& b : q)
+              for (auto& e : b) e.scaled_jacobian *= 0.5;
+          if (stored != "none") meshflow::io::write_quality(m, q, ctx.output("quality", "mesh_quality"));
         },
     .schema = R"({"type": "object", "additionalProperties": false, "properties": {
         "cells": {"type": "integer", "minimum": 1, "maximum": 10, "default": 4, "description": "cells per side"},
-        "invert": {"type": "boolean", "default": false, "description": "invert element 1"}}})"});
+        "invert": {"type": "boolean", "default": false, "description": "invert element 1"},
+        "quality": {"enum": ["none", "stored", "halved"], "default": "none",
+                    "description": "store the contract quality beside the mesh; halved: its scaled Jacobians halved"}}})"});
 
 struct Run {
   fs::path dir, out;
   mftest::Cli cli;
 };
 
-Run run_box(bool invert, bool report = true) {
+Run run_box(bool invert, bool report = true, const std::string& quality = "none") {
   Run r;
   r.dir = mftest::temp_dir("mesh-report");
   r.out = r.dir / "out";
   mftest::write_text(r.dir / "wf.yaml", std::string("meshflow: 1\nname: box\n") + (report ? "" : "report: false\n") +
                                             "stages:\n  box: {kind: report_test_box, with: {invert: " +
-                                            (invert ? "true" : "false") + "}}\noutputs:\n  mesh: {from: box}\n");
+                                            (invert ? "true" : "false") + ", quality: " + quality +
+                                            "}}\noutputs:\n  mesh: {from: box}\n");
   r.cli = mftest::run_cli({"run", (r.dir / "wf.yaml").string(), "--cache", (r.dir / "cache").string(), "--out",
                            r.out.string(), "--threads", "2"});
   return r;
@@ -144,6 +152,29 @@ TEST_CASE("a small run writes a self-contained report.html with the stage table,
   CHECK(mftest::read_text(r.out / "report.html") == mftest::read_text(first));
   // a folder without report.json: exit 2
   CHECK(mftest::run_cli({"report", r.dir.string()}).code == 2);
+}
+
+TEST_CASE("the page draws the quality its stage stored beside the mesh, not a second computation") {
+  // stored: the contract's own numbers, so the page is the one computed without them (the cache gone)
+  Run r = run_box(false, true, "stored");
+  INFO(r.cli.out, r.cli.err);
+  REQUIRE(r.cli.code == 0);
+  const std::string stored = mftest::read_text(r.out / "report.html");
+  fs::remove_all(r.dir / "cache");
+  fs::remove(r.out / "report.html");
+  REQUIRE(mftest::run_cli({"report", r.out.string()}).code == 0);
+  const std::string computed = mftest::read_text(r.out / "report.html");
+  CHECK(stored == computed);
+  // halved: the stored numbers are what the pictures show
+  Run h = run_box(false, true, "halved");
+  REQUIRE(h.cli.code == 0);
+  const std::string halved = mftest::read_text(h.out / "report.html");
+  // the same run's page rebuilt without the cache (computed quality) is not the one drawn from
+  // the halved numbers (the page is otherwise a function of report.json and the mesh)
+  fs::remove_all(h.dir / "cache");
+  fs::remove(h.out / "report.html");
+  REQUIRE(mftest::run_cli({"report", h.out.string()}).code == 0);
+  CHECK(mftest::read_text(h.out / "report.html") != halved);
 }
 
 TEST_CASE("an invalid mesh's page lists and marks its invalid elements by id") {
