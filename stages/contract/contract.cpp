@@ -478,10 +478,10 @@ struct Checker {
 
 }  // namespace
 
-Result check(const Mesh& m, Extent extent, const CadReference* cad, int threads) {
+Result check(const Mesh& m, Extent extent, const CadReference* cad, int threads, const model::MeshQuality* known) {
   Result r;
   r.problems = json::array();
-  r.quality = model::mesh_quality(m, threads);
+  r.quality = model::mesh_quality(m, threads, known);
   const auto& q = r.quality;
   const auto topo = model::build_topology(m);
   r.mesh = model::mesh_stats(m, q, topo);
@@ -547,8 +547,8 @@ model::MeshQuality record(StageContext& ctx, const Mesh& m, Extent extent, const
 }
 
 model::MeshQuality record_against(StageContext& ctx, const Mesh& m, Extent extent, const CadReference& ref,
-                                  const std::string& hint) {
-  return publish(ctx, check(m, extent, &ref, ctx.threads()), hint);
+                                  const std::string& hint, const model::MeshQuality* known) {
+  return publish(ctx, check(m, extent, &ref, ctx.threads(), known), hint);
 }
 
 }  // namespace meshflow::contract

@@ -78,7 +78,9 @@ struct Result {
   bool ok() const { return problems.empty(); }
 };
 
-Result check(const model::Mesh& m, Extent extent, const CadReference* cad, int threads);
+// `known`: per-block quality known already (model::mesh_quality's), taken instead of computed.
+Result check(const model::Mesh& m, Extent extent, const CadReference* cad, int threads,
+             const model::MeshQuality* known = nullptr);
 
 // The CAD reference of a healed shape (its solids' volume, each face's area and tag). OCCT's
 // integrations are not right on every trimmed face: its fixed Gauss rule gives Rotor 67's
@@ -100,8 +102,9 @@ double enclosed_volume(const model::Mesh& m);
 // so that no format writer computes it again.
 model::MeshQuality record(StageContext& ctx, const model::Mesh& m, Extent extent, const cad::Shape* shape,
                           const std::string& hint = {});
-// The same against a reference given as figures (e.g. only the volume of split's input).
+// The same against a reference given as figures (e.g. only the volume of split's input);
+// `known` as for check (split: the blocks it passes through, with its input's stored quality).
 model::MeshQuality record_against(StageContext& ctx, const model::Mesh& m, Extent extent, const CadReference& ref,
-                                  const std::string& hint = {});
+                                  const std::string& hint = {}, const model::MeshQuality* known = nullptr);
 
 }  // namespace meshflow::contract

@@ -85,8 +85,11 @@ void set_tet_perturbation_proof(bool on);
 
 // Quality of every element of the mesh's highest dimension: result[b][e] for block b
 // (empty for the lower-dimensional blocks). Deterministic for any thread count.
+// `known`: blocks whose quality is known already (known[b] has one entry per element of block b,
+// e.g. elements a stage passed through unchanged, with the quality its input stored): copied,
+// not computed (an element's quality is a function of its node coordinates alone).
 using MeshQuality = std::vector<std::vector<ElementQuality>>;
-MeshQuality mesh_quality(const Mesh& m, int threads = 0);
+MeshQuality mesh_quality(const Mesh& m, int threads = 0, const MeshQuality* known = nullptr);
 // Number of mesh_quality calls in this process (tests: a writer given the stored quality must
 // not compute it again).
 std::uint64_t mesh_quality_calls();

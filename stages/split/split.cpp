@@ -954,6 +954,7 @@ Result split_mesh(const Mesh& in, const Options& opt, int threads) {
     } else {
       nb.nodes = b.nodes;
     }
+    res.passed_through.push_back(first_macro[bi] == SIZE_MAX && dim == 3);
     out.blocks.push_back(std::move(nb));
   }
 

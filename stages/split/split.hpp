@@ -70,8 +70,10 @@ struct Stats {
 };
 
 struct Result {
-  model::Mesh mesh;
+  model::Mesh mesh;  // its blocks are the input's, in order (split blocks: their sub-elements)
   Stats stats;
+  // per block: 1 when its elements are the input block's, unchanged (same nodes, same order)
+  std::vector<char> passed_through;
 };
 
 // Cut positions t_0 = 0 < ... < t_L = 1 (distance from the wall, fraction of the thickness):

@@ -33,6 +33,27 @@ nlohmann::json to_json(const Stats& s) {
           {"periodic_pairs_added", s.periodic_pairs_added}};
 }
 
+// The quality of the blocks split passed through unchanged, from the quality the input's stage
+// stored beside the mesh (the same stage's "mesh_quality", when it wrote one): the contract takes
+// it instead of computing it again (the far-field tetrahedra: most of a domain's elements).
+// Other blocks empty.
+model::MeshQuality passed_through_quality(StageContext& ctx, const model::Mesh& in, const Result& r) {
+  model::MeshQuality known;
+  const Artifact* stored = nullptr;
+  for (const Artifact* a : ctx.inputs_of("mesh_quality"))
+    if (a->stage == ctx.input("mesh").stage) stored = a;
+  if (!stored) return known;
+  try {
+    known = io::read_quality(stored->path, in);
+  } catch (const io::MeshIOError& e) {
+    ctx.log(std::string("split: the input's stored quality is not this mesh's (") + e.what() + "); computing it");
+    return {};
+  }
+  for (std::size_t b = 0; b < known.size(); ++b)
+    if (b >= r.passed_through.size() || !r.passed_through[b]) model::MeshQuality::value_type().swap(known[b]);
+  return known;
+}
+
 void run(StageContext& ctx) {
   const auto& p = ctx.params();
   Options opt;
@@ -52,12 +73,13 @@ void run(StageContext& ctx) {
   input_volume.source = "the input mesh";
   ctx.progress(0.1, "splitting");
   Result r = split_mesh(in, opt, ctx.threads());
+  const model::MeshQuality known = passed_through_quality(ctx, in, r);
   in = model::Mesh();  // not needed any more: the writer and the contract hold the split mesh alone
   ctx.progress(0.6, "writing");
   io::write_mesh(r.mesh, ctx.output("mesh", "mesh"), io::MeshFormat::MshBinary);
   ctx.progress(0.7, "quality");
   // The contract's per-element quality is stored with the mesh: the VTU writer reads it.
-  io::write_quality(r.mesh, contract::record_against(ctx, r.mesh, contract::Extent::Domain, input_volume),
+  io::write_quality(r.mesh, contract::record_against(ctx, r.mesh, contract::Extent::Domain, input_volume, {}, &known),
                     ctx.output("quality", "mesh_quality"));
   ctx.stats()["split"] = to_json(r.stats);
   std::ostringstream s;
@@ -74,6 +96,7 @@ StageRegistrar reg({.kind = "split",
                     .version = 2,  // 2: also stores the mesh's per-element quality ("quality")
                     .summary = "isoparametric boundary-layer splitting of near-field prisms/hexes into `layers` sub-elements with geometric growth",
                     .needs = {"mesh"},
+                    .reads = {"mesh_quality"},
                     .produces = {{"mesh", "mesh"}, {"quality", "mesh_quality"}},
                     .run = run});
 

@@ -9,6 +9,7 @@
 #include "engine/cli.hpp"
 #include "engine/stage.hpp"
 #include "stages/io/mesh_io.hpp"
+#include "stages/model/quality.hpp"
 #include "stages/model/topology.hpp"
 
 #include <nlohmann/json.hpp>
@@ -35,12 +36,23 @@ meshflow::StageRegistrar source_reg({
           if (!ctx.params().value("walls", true))
             for (auto& g : J.mesh.physicals)
               if (g.name == "wall") g.name = "body";
-          meshflow::io::write_mesh(J.mesh, ctx.output("mesh", "mesh"), meshflow::io::MeshFormat::MshBinary);
+          const auto mesh_path = ctx.output("mesh", "mesh");
+          meshflow::io::write_mesh(J.mesh, mesh_path, meshflow::io::MeshFormat::MshBinary);
+          const std::string stored = ctx.params().value("quality", "none");
+          if (stored != "none") {  // as a mesh stage stores it beside its mesh; halved: not this mesh's numbers
+            auto m = meshflow::io::read_mesh(mesh_path);
+            auto q = meshflow::model::mesh_quality(m, 1);
+            if (stored == "halved")
+              for (auto& b : q)
+                for (auto& e : b) e.scaled_jacobian *= 0.5;
+            meshflow::io::write_quality(m, q, ctx.output("quality", "mesh_quality"));
+          }
         },
     .schema = R"({"type": "object", "additionalProperties": false, "properties": {
         "order": {"type": "integer", "minimum": 1, "maximum": 6, "default": 2, "description": "order"},
         "segments": {"type": "integer", "minimum": 4, "maximum": 64, "default": 8, "description": "segments around"},
-        "walls": {"type": "boolean", "default": true, "description": "keep the wall group"}}})"});
+        "walls": {"type": "boolean", "default": true, "description": "keep the wall group"},
+        "quality": {"enum": ["none", "stored", "halved"], "default": "none", "description": "store the quality beside the mesh"}}})"});
 
 using mftest::Cli;
 Cli run(std::vector<std::string> args) { return mftest::run_cli(std::move(args)); }
@@ -134,5 +146,54 @@ TEST_CASE("split through meshflow run: a mesh without walls is refused with the 
   auto r = run({"run", "--allow-invalid", (d / "w.yaml").string(), "--cache", (d / "cache").string(), "--out", (d / "out").string()});
   CHECK(r.code != 0);
   CHECK((r.out + r.err).find("no wall faces") != std::string::npos);
+  fs::remove_all(d);
+}
+
+// The far field split passes through unchanged keeps the quality its input's stage stored: the
+// contract takes it, computes the split blocks only, and stores the same bytes as without it.
+TEST_CASE("split takes the passed-through elements' quality from its input's stored quality") {
+  fs::path d = tmpdir();
+  auto quality_of = [&](const std::string& stored, const std::string& tag) {
+    std::ofstream(d / (tag + ".yaml")) << "meshflow: 1\nname: split-q\nstages:\n"
+                                          "  source: {kind: split_test_junction, with: {order: 3, segments: 8, quality: " +
+                                              stored + "}}\n"
+                                          "  split:  {kind: split, needs: [source], with: {layers: 4, ratio: 1.5}}\n"
+                                          "outputs: {mesh: {from: split}}\n";
+    auto r = run({"run", "--allow-invalid", (d / (tag + ".yaml")).string(), "--cache", (d / "cache").string(), "--out",
+                  (d / tag).string(), "--threads", "2"});
+    INFO(r.out << r.err);
+    REQUIRE(r.code == 0);
+    std::string digest;
+    const auto st = stage_stats(d / tag, "split");
+    for (auto& o : st["outputs"])
+      if (o["name"] == "quality") digest = o["digest"];
+    REQUIRE(digest.size() == 64);
+    const fs::path obj = d / "cache" / "objects" / digest.substr(0, 2) / digest;
+    REQUIRE(fs::exists(obj));
+    auto m = meshflow::io::read_mesh(d / tag / "mesh.msh");
+    return std::make_pair(digest, meshflow::io::read_quality(obj, m));
+  };
+  auto [none_digest, computed] = quality_of("none", "none");
+  auto [stored_digest, stored] = quality_of("stored", "stored");
+  auto [halved_digest, halved] = quality_of("halved", "halved");
+  CHECK(stored_digest == none_digest);  // the stored numbers are the computed ones
+  CHECK(halved_digest != none_digest);  // taken, not computed again
+  REQUIRE(halved.size() == computed.size());
+  std::size_t tets = 0, subs = 0;
+  auto m = meshflow::io::read_mesh(d / "none" / "mesh.msh");
+  for (std::size_t b = 0; b < m.blocks.size(); ++b) {
+    REQUIRE(halved[b].size() == computed[b].size());
+    for (std::size_t e = 0; e < computed[b].size(); ++e) {
+      if (m.blocks[b].shape == meshflow::model::Shape::Tet) {  // passed through: the source's (halved) numbers
+        CHECK(halved[b][e].scaled_jacobian == computed[b][e].scaled_jacobian * 0.5);
+        ++tets;
+      } else {  // split: computed
+        CHECK(halved[b][e].scaled_jacobian == computed[b][e].scaled_jacobian);
+        ++subs;
+      }
+    }
+  }
+  CHECK(tets > 0);
+  CHECK(subs > 0);
   fs::remove_all(d);
 }
