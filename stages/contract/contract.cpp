@@ -478,10 +478,11 @@ struct Checker {
 
 }  // namespace
 
-Result check(const Mesh& m, Extent extent, const CadReference* cad, int threads, const model::MeshQuality* known) {
+Result check(const Mesh& m, Extent extent, const CadReference* cad, int threads, const model::MeshQuality* known,
+             const std::vector<char>* moved) {
   Result r;
   r.problems = json::array();
-  r.quality = model::mesh_quality(m, threads, known);
+  r.quality = model::mesh_quality(m, threads, known, moved);
   const auto& q = r.quality;
   const auto topo = model::build_topology(m);
   r.mesh = model::mesh_stats(m, q, topo);
@@ -540,15 +541,17 @@ model::MeshQuality publish(StageContext& ctx, Result r, const std::string& hint)
 }
 }  // namespace
 
-model::MeshQuality record(StageContext& ctx, const Mesh& m, Extent extent, const cad::Shape* shape, const std::string& hint) {
+model::MeshQuality record(StageContext& ctx, const Mesh& m, Extent extent, const cad::Shape* shape, const std::string& hint,
+                          const model::MeshQuality* known, const std::vector<char>* moved) {
   CadReference ref;
   if (shape) ref = cad_reference(*shape);
-  return publish(ctx, check(m, extent, shape ? &ref : nullptr, ctx.threads()), hint);
+  return publish(ctx, check(m, extent, shape ? &ref : nullptr, ctx.threads(), known, moved), hint);
 }
 
 model::MeshQuality record_against(StageContext& ctx, const Mesh& m, Extent extent, const CadReference& ref,
-                                  const std::string& hint, const model::MeshQuality* known) {
-  return publish(ctx, check(m, extent, &ref, ctx.threads(), known), hint);
+                                  const std::string& hint, const model::MeshQuality* known,
+                                  const std::vector<char>* moved) {
+  return publish(ctx, check(m, extent, &ref, ctx.threads(), known, moved), hint);
 }
 
 }  // namespace meshflow::contract

@@ -78,9 +78,9 @@ struct Result {
   bool ok() const { return problems.empty(); }
 };
 
-// `known`: per-block quality known already (model::mesh_quality's), taken instead of computed.
+// `known`, `moved`: quality known already, taken instead of computed (model::mesh_quality's).
 Result check(const model::Mesh& m, Extent extent, const CadReference* cad, int threads,
-             const model::MeshQuality* known = nullptr);
+             const model::MeshQuality* known = nullptr, const std::vector<char>* moved = nullptr);
 
 // The CAD reference of a healed shape (its solids' volume, each face's area and tag). OCCT's
 // integrations are not right on every trimmed face: its fixed Gauss rule gives Rotor 67's
@@ -100,11 +100,15 @@ double enclosed_volume(const model::Mesh& m);
 // validity problem: what the user can change at this stage. Returns the per-element quality it
 // computed, which the stage stores beside its mesh (io::write_quality, the "quality" artifact)
 // so that no format writer computes it again.
+// `known`, `moved` as for check: what the stage knows of the quality already (computed on its
+// way, or its input's stored quality and the nodes it moved since).
 model::MeshQuality record(StageContext& ctx, const model::Mesh& m, Extent extent, const cad::Shape* shape,
-                          const std::string& hint = {});
+                          const std::string& hint = {}, const model::MeshQuality* known = nullptr,
+                          const std::vector<char>* moved = nullptr);
 // The same against a reference given as figures (e.g. only the volume of split's input);
 // `known` as for check (split: the blocks it passes through, with its input's stored quality).
 model::MeshQuality record_against(StageContext& ctx, const model::Mesh& m, Extent extent, const CadReference& ref,
-                                  const std::string& hint = {}, const model::MeshQuality* known = nullptr);
+                                  const std::string& hint = {}, const model::MeshQuality* known = nullptr,
+                                  const std::vector<char>* moved = nullptr);
 
 }  // namespace meshflow::contract

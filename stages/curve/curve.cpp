@@ -1109,7 +1109,8 @@ void Curver::check_quality(const Mesh& out) {
   auto qin = model::mesh_quality(in_, O_.threads);
   for (auto& b : qin)
     for (auto& q : b) R_.invalid_linear += !q.valid;
-  auto q = model::mesh_quality(out, O_.threads);
+  R_.quality = model::mesh_quality(out, O_.threads);
+  const auto& q = R_.quality;
   for (std::size_t bi = 0; bi < q.size(); ++bi) {
     const auto& b = out.blocks[bi];
     for (std::size_t e = 0; e < q[bi].size(); ++e) {

@@ -53,6 +53,7 @@
 #pragma once
 
 #include "stages/model/mesh.hpp"
+#include "stages/model/quality.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -97,6 +98,8 @@ struct Report {
   double min_scaled_jacobian = 1;
   std::vector<InvalidElement> invalid_elements;  // at most 100, in mesh order
   double seconds_place = 0, seconds_check = 0, seconds_total = 0;
+  // The curved mesh's per-element quality (when checked): the contract takes it, not a second pass.
+  model::MeshQuality quality;
   nlohmann::json to_json() const;
 };
 

@@ -34,7 +34,9 @@ void run(StageContext& ctx) {
   io::write_mesh(out, ctx.output("mesh", "mesh"), io::MeshFormat::MshBinary);
   ctx.progress(0.9, "statistics");
   const auto quality = contract::record(ctx, out, contract::Extent::Domain, &shape,
-                   "curving inverted them; optimise (untangle: true) repairs such elements, or a thinner shell / lower order avoids them");
+                   "curving inverted them; optimise (untangle: true) repairs such elements, or a thinner shell / lower order avoids them",
+                   rep.quality.empty() ? nullptr : &rep.quality);
+  model::MeshQuality().swap(rep.quality);
   io::write_quality(out, quality, ctx.output("quality", "mesh_quality"));
   ctx.stats()["curve"] = rep.to_json();
   ctx.progress(1.0, "done");

@@ -10,6 +10,7 @@
 #include <tbb/task_arena.h>
 
 #include <algorithm>
+#include <cstring>
 #include <atomic>
 #include <cstdio>
 #include <cstdlib>
@@ -1462,7 +1463,51 @@ std::atomic<std::uint64_t> quality_calls{0};
 }
 std::uint64_t mesh_quality_calls() { return quality_calls.load(); }
 
-std::vector<std::vector<ElementQuality>> mesh_quality(const Mesh& m, int threads, const MeshQuality* known) {
+namespace {
+// The quality of `count` elements of block b, element(k) the k-th, into out[0..count), in
+// chunks evaluated together (the per-element results do not depend on the chunk's others).
+template <class ElementOf>
+void evaluate_elements(const Mesh& m, const ElementBlock& b, int dim, bool planar, std::size_t count, ElementOf element_of,
+                       ElementQuality* out) {
+  const JacobianSpace& sp = space(b.shape, b.order);
+  const int n = b.nodes_per_element();
+  constexpr int kChunk = 32;  // dense shapes: G X and T V of a chunk stay in L2 (64 and more: 2.5x slower)
+  const size_t nchunks = (count + kChunk - 1) / kChunk;
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, nchunks), [&](const tbb::blocked_range<size_t>& r) {
+    Eigen::MatrixXd X(n, 3 * kChunk);
+    std::vector<double> coords(static_cast<size_t>(kChunk) * n * 3);
+    std::vector<double> normals(3 * kChunk);
+    std::vector<const double*> xyz(kChunk);
+    for (size_t c = r.begin(); c != r.end(); ++c) {
+      const size_t e0 = c * kChunk;
+      const int cnt = (int)std::min<size_t>(kChunk, count - e0);
+      if (cnt < kChunk) X.setZero();
+      for (int e = 0; e < cnt; ++e) {
+        const std::uint32_t* nodes = b.element(element_of(e0 + e));
+        double* P = coords.data() + static_cast<size_t>(e) * n * 3;
+        for (int i = 0; i < n; ++i) {
+          P[3 * i] = m.x[nodes[i]];
+          P[3 * i + 1] = m.y[nodes[i]];
+          P[3 * i + 2] = m.z[nodes[i]];
+          for (int rr = 0; rr < 3; ++rr) X(i, 3 * e + rr) = P[3 * i + rr] - P[rr];
+        }
+        xyz[e] = P;
+        if (dim == 2) {
+          if (planar) {
+            normals[3 * e] = 0, normals[3 * e + 1] = 0, normals[3 * e + 2] = 1;
+          } else {
+            straight_normal(b.shape, P, &normals[3 * e]);
+          }
+        }
+      }
+      evaluate_chunk(sp, X, cnt, normals.data(), xyz, out + e0);
+    }
+  });
+}
+}  // namespace
+
+std::vector<std::vector<ElementQuality>> mesh_quality(const Mesh& m, int threads, const MeshQuality* known,
+                                                      const std::vector<char>* moved) {
   ++quality_calls;
   std::vector<std::vector<ElementQuality>> res(m.blocks.size());
   const int dim = m.dimension();
@@ -1476,43 +1521,25 @@ std::vector<std::vector<ElementQuality>> mesh_quality(const Mesh& m, int threads
       if (dimension(b.shape) != dim) continue;
       if (known && bi < known->size() && !(*known)[bi].empty() && (*known)[bi].size() == b.size()) {
         res[bi] = (*known)[bi];
+        if (!moved) continue;
+        // the elements with a moved node, computed and put in their places
+        std::vector<std::uint32_t> redo;
+        const int n = b.nodes_per_element();
+        for (std::uint32_t e = 0; e < b.size(); ++e) {
+          const std::uint32_t* nodes = b.element(e);
+          for (int i = 0; i < n; ++i)
+            if (nodes[i] >= moved->size() || (*moved)[nodes[i]]) {
+              redo.push_back(e);
+              break;
+            }
+        }
+        std::vector<ElementQuality> q(redo.size());
+        evaluate_elements(m, b, dim, planar, redo.size(), [&](size_t k) { return redo[k]; }, q.data());
+        for (std::size_t k = 0; k < redo.size(); ++k) res[bi][redo[k]] = q[k];
         continue;
       }
       res[bi].resize(b.size());
-      const JacobianSpace& sp = space(b.shape, b.order);
-      const int n = b.nodes_per_element();
-      constexpr int kChunk = 32;  // dense shapes: G X and T V of a chunk stay in L2 (64 and more: 2.5x slower)
-      const size_t nchunks = (b.size() + kChunk - 1) / kChunk;
-      tbb::parallel_for(tbb::blocked_range<size_t>(0, nchunks), [&](const tbb::blocked_range<size_t>& r) {
-        Eigen::MatrixXd X(n, 3 * kChunk);
-        std::vector<double> coords(static_cast<size_t>(kChunk) * n * 3);
-        std::vector<double> normals(3 * kChunk);
-        std::vector<const double*> xyz(kChunk);
-        for (size_t c = r.begin(); c != r.end(); ++c) {
-          const size_t e0 = c * kChunk;
-          const int cnt = (int)std::min<size_t>(kChunk, b.size() - e0);
-          if (cnt < kChunk) X.setZero();
-          for (int e = 0; e < cnt; ++e) {
-            const std::uint32_t* nodes = b.element(e0 + e);
-            double* P = coords.data() + static_cast<size_t>(e) * n * 3;
-            for (int i = 0; i < n; ++i) {
-              P[3 * i] = m.x[nodes[i]];
-              P[3 * i + 1] = m.y[nodes[i]];
-              P[3 * i + 2] = m.z[nodes[i]];
-              for (int rr = 0; rr < 3; ++rr) X(i, 3 * e + rr) = P[3 * i + rr] - P[rr];
-            }
-            xyz[e] = P;
-            if (dim == 2) {
-              if (planar) {
-                normals[3 * e] = 0, normals[3 * e + 1] = 0, normals[3 * e + 2] = 1;
-              } else {
-                straight_normal(b.shape, P, &normals[3 * e]);
-              }
-            }
-          }
-          evaluate_chunk(sp, X, cnt, normals.data(), xyz, res[bi].data() + e0);
-        }
-      });
+      evaluate_elements(m, b, dim, planar, b.size(), [](size_t k) { return k; }, res[bi].data());
     }
   };
   if (threads > 0) {
@@ -1522,6 +1549,16 @@ std::vector<std::vector<ElementQuality>> mesh_quality(const Mesh& m, int threads
     run();
   }
   return res;
+}
+
+std::vector<char> moved_nodes(const Mesh& m, const std::vector<double>& x0, const std::vector<double>& y0,
+                              const std::vector<double>& z0) {
+  std::vector<char> moved(m.num_nodes(), 1);
+  const std::size_t n = std::min({m.num_nodes(), x0.size(), y0.size(), z0.size()});
+  for (std::size_t i = 0; i < n; ++i)  // bitwise: -0.0 and 0.0 differ, NaN equals itself
+    moved[i] = std::memcmp(&m.x[i], &x0[i], sizeof(double)) || std::memcmp(&m.y[i], &y0[i], sizeof(double)) ||
+               std::memcmp(&m.z[i], &z0[i], sizeof(double));
+  return moved;
 }
 
 namespace {

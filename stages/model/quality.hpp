@@ -87,9 +87,15 @@ void set_tet_perturbation_proof(bool on);
 // (empty for the lower-dimensional blocks). Deterministic for any thread count.
 // `known`: blocks whose quality is known already (known[b] has one entry per element of block b,
 // e.g. elements a stage passed through unchanged, with the quality its input stored): copied,
-// not computed (an element's quality is a function of its node coordinates alone).
+// not computed (an element's quality is a function of its node coordinates alone). With
+// `moved` (per node), known holds for the coordinates before those nodes moved: the elements
+// with a moved node are computed, the others copied.
 using MeshQuality = std::vector<std::vector<ElementQuality>>;
-MeshQuality mesh_quality(const Mesh& m, int threads = 0, const MeshQuality* known = nullptr);
+MeshQuality mesh_quality(const Mesh& m, int threads = 0, const MeshQuality* known = nullptr,
+                         const std::vector<char>* moved = nullptr);
+// Per node: whether its coordinates differ from (x0, y0, z0) (bitwise; nodes beyond them: moved).
+std::vector<char> moved_nodes(const Mesh& m, const std::vector<double>& x0, const std::vector<double>& y0,
+                              const std::vector<double>& z0);
 // Number of mesh_quality calls in this process (tests: a writer given the stored quality must
 // not compute it again).
 std::uint64_t mesh_quality_calls();

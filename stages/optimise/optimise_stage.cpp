@@ -26,6 +26,18 @@ std::string duration(double s) {
   return b;
 }
 
+// The quality the input mesh's stage stored beside it (its "mesh_quality"), or none when it
+// stored none or it is not this mesh's.
+model::MeshQuality input_quality(StageContext& ctx, const model::Mesh& m) {
+  for (const Artifact* a : ctx.inputs_of("mesh_quality"))
+    if (a->stage == ctx.input("mesh").stage) try {
+        return io::read_quality(a->path, m);
+      } catch (const io::MeshIOError& e) {
+        ctx.log(std::string("optimise: the input's stored quality is not this mesh's (") + e.what() + "); computing it");
+      }
+  return {};
+}
+
 void run(StageContext& ctx) {
   const auto& p = ctx.params();
   Options opt;
@@ -46,6 +58,13 @@ void run(StageContext& ctx) {
     throw StageError(std::string("optimise: cannot read the input mesh: ") + e.what());
   }
   cad::Shape shape = cad::Shape::load(ctx.input("shape").path);
+  // the quality the input's stage stored, at the input's coordinates: every pass below computes
+  // only the elements whose nodes moved since
+  const model::MeshQuality known = input_quality(ctx, m);
+  const std::vector<double> x0 = known.empty() ? std::vector<double>() : m.x;
+  const std::vector<double> y0 = known.empty() ? std::vector<double>() : m.y;
+  const std::vector<double> z0 = known.empty() ? std::vector<double>() : m.z;
+  auto moved_since_input = [&] { return known.empty() ? std::vector<char>() : model::moved_nodes(m, x0, y0, z0); };
   ctx.progress(0.1, "optimising surface nodes");
   Report r = optimise_mesh(m, shape, opt, ctx.threads());
   UntangleReport ur;
@@ -59,6 +78,8 @@ void run(StageContext& ctx) {
     uo.element_budget = 1e6 * p.value("untangle_element_budget", 200.0);
     uo.stage_budget = 1e6 * p.value("untangle_budget", 40.0);
     uo.time_limit = p.value("untangle_time_limit", 1800.0);
+    const std::vector<char> moved = moved_since_input();
+    if (!known.empty()) uo.known_quality = &known, uo.moved_since_known = &moved;
     std::function<void(const std::string&)> dbg;
     if (std::getenv("MESHFLOW_UNTANGLE_DEBUG")) dbg = [&](const std::string& l) { ctx.log(l); };
     ur = untangle(m, uo, ctx.threads(), dbg, &shape, [&](const UntangleProgress& g) {
@@ -70,10 +91,12 @@ void run(StageContext& ctx) {
   ctx.progress(0.7, "writing");
   io::write_mesh(m, ctx.output("mesh", "mesh"), io::MeshFormat::MshBinary);
   ctx.progress(0.8, "quality");
+  const std::vector<char> moved = moved_since_input();
   const auto quality = contract::record(ctx, m, contract::Extent::Domain, &shape,
                    do_untangle ? "optimise could not repair them: stats.optimise.untangle.unrepaired lists them with the "
                                  "reason and what to change (a thinner shell, a lower curve.order, larger untangle_rings or budgets)"
-                               : "untangling is off (optimise.untangle: false): turn it on to repair them");
+                               : "untangling is off (optimise.untangle: false): turn it on to repair them",
+                   known.empty() ? nullptr : &known, known.empty() ? nullptr : &moved);
   io::write_quality(m, quality, ctx.output("quality", "mesh_quality"));
   ctx.stats()["optimise"] = r.to_json();
   if (do_untangle) ctx.stats()["optimise"]["untangle"] = ur.to_json();
@@ -125,6 +148,7 @@ StageRegistrar reg({.kind = "optimise",
                     .summary = "surface node optimisation: spring energy of high-order edges/faces in CAD parameter space, bounded L-BFGS-B, validity kept",
                     .libraries = {"LBFGSpp 0.1.0"},
                     .needs = {"mesh", "shape"},
+                    .reads = {"mesh_quality"},
                     .produces = {{"mesh", "mesh"}, {"quality", "mesh_quality"}},
                     .run = run});
 

@@ -1461,7 +1461,7 @@ UntangleReport untangle(Mesh& m, const UntangleOptions& opt, int threads, const 
   S.logging = bool(log);
   std::vector<ElemRef> invalid;
   {
-    const auto quality = model::mesh_quality(m, threads);
+    const auto quality = model::mesh_quality(m, threads, opt.known_quality, opt.moved_since_known);
     S.valid.resize(m.blocks.size());
     for (std::uint32_t bi = 0; bi < m.blocks.size(); ++bi) {
       S.valid[bi].assign(quality[bi].size(), 1);

@@ -95,6 +95,7 @@
 #pragma once
 
 #include "stages/model/mesh.hpp"
+#include "stages/model/quality.hpp"
 
 #include <nlohmann/json_fwd.hpp>
 
@@ -121,6 +122,10 @@ struct UntangleOptions {
   double stage_budget = 40e6;     // since the last repair (no progress; after a repair at least one element budget and the repairs' work), checked between elements
   double time_limit = 0;          // seconds, safety net only (non-deterministic when it fires); 0 = none
   int max_listed = 20;           // unrepaired elements listed in the report
+  // What is known of the mesh's quality at the start (model::mesh_quality's `known` and `moved`:
+  // e.g. the input's stored quality and the nodes moved since): the first pass computes the rest.
+  const model::MeshQuality* known_quality = nullptr;
+  const std::vector<char>* moved_since_known = nullptr;
 };
 
 // An element left invalid, with where it is and why (reasons: "budget" above).

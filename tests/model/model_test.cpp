@@ -567,3 +567,57 @@ TEST_CASE("pyramids: a P=4 pyramid valid at every sample of the order-14 lattice
   }
   CHECK(found >= 1);
 }
+
+TEST_CASE("mesh_quality with a known quality and the nodes moved since computes those elements only, to the same numbers") {
+  // 40 curved P=3 tets (and 20 prisms) in a row, each with its own nodes, perturbed at random
+  Mesh m;
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> d(-0.04, 0.04);
+  for (Shape s : {Shape::Tet, Shape::Prism}) {
+    auto& b = m.block(s, 3, 3, 1);
+    for (int e = 0; e < (s == Shape::Tet ? 40 : 20); ++e) {
+      std::vector<std::uint32_t> nodes;
+      for (auto& r : reference_nodes(s, 3)) nodes.push_back(m.add_node(r[0] + 2 * e + d(rng), r[1] + d(rng), r[2] + d(rng)));
+      b.add(nodes.data());
+    }
+  }
+  const auto before = mesh_quality(m, 2);
+  const std::vector<double> x0 = m.x, y0 = m.y, z0 = m.z;
+  // move one node of every fifth element of each block
+  std::set<std::pair<std::size_t, std::size_t>> touched;
+  for (std::size_t bi = 0; bi < m.blocks.size(); ++bi)
+    for (std::size_t e = 0; e < m.blocks[bi].size(); e += 5) {
+      const std::uint32_t n = m.blocks[bi].element(e)[m.blocks[bi].nodes_per_element() - 1];
+      m.x[n] += 0.05, m.z[n] -= 0.03;
+      touched.insert({bi, e});
+    }
+  const auto moved = moved_nodes(m, x0, y0, z0);
+  CHECK(std::count(moved.begin(), moved.end(), 1) == long(touched.size()));
+  const auto full = mesh_quality(m, 2);
+  const auto updated = mesh_quality(m, 1, &before, &moved);
+  // a known quality marked: the untouched elements keep it, the touched ones are computed
+  auto marked = before;
+  for (auto& b : marked)
+    for (auto& q : b) q.scaled_jacobian = 42;
+  const auto from_marked = mesh_quality(m, 2, &marked, &moved);
+  for (std::size_t bi = 0; bi < m.blocks.size(); ++bi) {
+    REQUIRE(updated[bi].size() == full[bi].size());
+    for (std::size_t e = 0; e < full[bi].size(); ++e) {
+      CAPTURE(bi);
+      CAPTURE(e);
+      CHECK(updated[bi][e].scaled_jacobian == full[bi][e].scaled_jacobian);
+      CHECK(updated[bi][e].min_det == full[bi][e].min_det);
+      CHECK(updated[bi][e].max_det == full[bi][e].max_det);
+      CHECK(updated[bi][e].aspect_ratio == full[bi][e].aspect_ratio);
+      CHECK(updated[bi][e].valid == full[bi][e].valid);
+      if (touched.count({bi, e})) CHECK(from_marked[bi][e].scaled_jacobian == full[bi][e].scaled_jacobian);
+      else CHECK(from_marked[bi][e].scaled_jacobian == 42);
+    }
+  }
+  // without `moved`, a known block is taken whole; one of another size is computed
+  auto short_known = marked;
+  short_known[0].pop_back();
+  const auto taken = mesh_quality(m, 2, &short_known);
+  CHECK(taken[0][0].scaled_jacobian == full[0][0].scaled_jacobian);
+  CHECK(taken[1][0].scaled_jacobian == 42);
+}
