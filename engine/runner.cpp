@@ -560,7 +560,6 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
   const int cores = int(std::max(1u, std::thread::hardware_concurrency()));
   const int jobs = opt.jobs > 0 ? opt.jobs : cores;
   const int threads = opt.threads > 0 ? opt.threads : cores;
-  const int stage_threads = std::max(1, threads / jobs);
   const bool tty = (&out == &std::cout) && ::isatty(1);
 
   RunResult rr;
@@ -670,11 +669,27 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
   line("meshflow: " + wf.name + " (" + wf.file.string() + "), " + std::to_string(wf.stages.size()) + " stages, cache " +
        cache.root().string());
 
+  // Whether every stage stage i needs is done (ready to run or to be found in the cache).
+  auto needs_done = [&](size_t i) {
+    for (auto& n : wf.stages[i].needs) {
+      size_t ni = size_t(std::find_if(wf.stages.begin(), wf.stages.end(), [&](auto& s) { return s.name == n; }) - wf.stages.begin());
+      if (state[ni] != Done) return false;
+    }
+    return true;
+  };
   while (finished < wf.stages.size()) {
-    // Start what is ready, in topological order, within the job budget.
+    // Start what is ready, in topological order, within the job budget. A stage's share of the
+    // thread budget is split among the stages that run with it: those running and those ready
+    // after it in this pass, at most `jobs` (a chain of stages gives each one every thread; a
+    // fixed budget / jobs left one of two cores idle through the whole demo). Outputs do not
+    // depend on it: every stage gives the same bytes at any thread count.
+    size_t ready_left = 0;
+    for (size_t i = 0; i < wf.stages.size(); ++i) ready_left += (state[i] == Pending || state[i] == Waiting) && needs_done(i);
     for (size_t i = 0; i < wf.stages.size(); ++i) {
       if (state[i] != Pending && state[i] != Waiting) continue;
       const StageDecl& d = wf.stages[i];
+      const bool counted = needs_done(i);
+      if (counted && ready_left > 0) --ready_left;  // ready_left: the ready stages after this one
       bool ready = true, blocked = false;
       for (auto& n : d.needs) {
         auto& nr = results[n];
@@ -746,6 +761,8 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
       std::cout.flush();
       std::cerr.flush();
       std::fflush(nullptr);
+      const int together = std::min<int>(jobs, int(running.size() + 1 + ready_left));
+      const int stage_threads = std::max(1, threads / std::max(1, together));
       pid_t parent = ::getpid();
       pid_t pid = ::fork();
       if (pid < 0) throw std::runtime_error(std::string("fork: ") + std::strerror(errno));

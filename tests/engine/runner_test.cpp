@@ -259,6 +259,35 @@ outputs:
   CHECK(b["stages"][0]["stats"]["threads_used"] == 2);
 }
 
+TEST_CASE("the thread budget is shared by the stages that run together: a chain gets all of it at every step") {
+  Fixture chain(R"(meshflow: 1
+name: chain
+stages:
+  p1: {kind: t_par, with: {n: 1000}}
+  p2: {kind: t_par, needs: [p1], with: {n: 2000}}
+outputs:
+  o: {from: p2}
+)");
+  auto r = chain.run({"--jobs", "2", "--threads", "2"});
+  REQUIRE(r.code == 0);
+  json c = json::parse(read_text(chain.out / "report.json"));
+  CHECK(c["stages"][0]["stats"]["threads_used"] == 2);  // alone: every thread, not 2 / jobs
+  CHECK(c["stages"][1]["stats"]["threads_used"] == 2);
+  Fixture side(R"(meshflow: 1
+name: side
+stages:
+  p1: {kind: t_par, with: {n: 1000}}
+  p2: {kind: t_par, with: {n: 2000}}
+outputs:
+  o: {from: p2}
+)");
+  auto s = side.run({"--jobs", "2", "--threads", "2"});
+  REQUIRE(s.code == 0);
+  json b = json::parse(read_text(side.out / "report.json"));
+  CHECK(b["stages"][0]["stats"]["threads_used"] == 1);  // two ready at once: one thread each
+  CHECK(b["stages"][1]["stats"]["threads_used"] == 1);
+}
+
 TEST_CASE("golden: check passes, reports differing fields, refuses --update under CI") {
   Fixture f;
   unsetenv("CI");
