@@ -1,6 +1,8 @@
 #include "stages/contract/contract.hpp"
 
 #include "engine/stage.hpp"
+#include "engine/artifact_type.hpp"
+#include <fstream>
 #include "stages/cad/cad.hpp"
 #include "stages/model/basis.hpp"
 #include "stages/model/quality.hpp"
@@ -529,6 +531,46 @@ CadReference cad_reference(const cad::Shape& shape) {
   return ref;
 }
 
+void write_cad_reference(const CadReference& ref, const std::filesystem::path& path) {
+  json faces = json::array();
+  for (auto& f : ref.faces)
+    faces.push_back({{"entity", f.entity}, {"area", f.area}, {"group", f.group}, {"reliable", f.reliable}});
+  const json j = {{"format", "meshflow cad_reference 1"},
+                  {"volume", ref.volume},
+                  {"volume_reliable", ref.volume_reliable},
+                  {"source", ref.source},
+                  {"faces", faces}};
+  std::ofstream o(path, std::ios::binary);
+  o << j.dump(1) << "\n";
+  o.close();
+  if (!o) throw StageError("cannot write the CAD reference " + path.string() + " (disk full?)");
+}
+
+CadReference read_cad_reference(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  json j;
+  try {
+    j = json::parse(in);
+    if (j.at("format") != "meshflow cad_reference 1") throw std::runtime_error("not a meshflow cad_reference 1 file");
+    CadReference ref;
+    ref.volume = j.at("volume").get<double>();
+    ref.volume_reliable = j.at("volume_reliable").get<bool>();
+    ref.source = j.at("source").get<std::string>();
+    for (auto& f : j.at("faces"))
+      ref.faces.push_back({f.at("entity").get<int>(), f.at("area").get<double>(), f.at("group").get<std::string>(),
+                           f.at("reliable").get<bool>()});
+    return ref;
+  } catch (const std::exception& e) {
+    throw StageError("cannot read the CAD reference " + path.string() + ": " + e.what() + "; re-run the stage that wrote it");
+  }
+}
+
+const ArtifactTypeRegistrar cad_reference_type({
+    .type = "cad_reference",
+    .extension = ".json",
+    .summary = "the fluid solid's volume and each face's area and tag, the figures the mesh contract compares with",
+});
+
 namespace {
 model::MeshQuality publish(StageContext& ctx, Result r, const std::string& hint) {
   if (!hint.empty())
@@ -541,10 +583,19 @@ model::MeshQuality publish(StageContext& ctx, Result r, const std::string& hint)
 }
 }  // namespace
 
+// The CAD reference of the stage's shape: stored beside it by the stage that wrote it, else computed.
+CadReference reference_of(StageContext& ctx, const cad::Shape& shape) {
+  const auto shapes = ctx.inputs_of("shape");
+  if (!shapes.empty())
+    for (const Artifact* a : ctx.inputs_of("cad_reference"))
+      if (a->stage == shapes[0]->stage) return read_cad_reference(a->path);
+  return cad_reference(shape);
+}
+
 model::MeshQuality record(StageContext& ctx, const Mesh& m, Extent extent, const cad::Shape* shape, const std::string& hint,
                           const model::MeshQuality* known, const std::vector<char>* moved) {
   CadReference ref;
-  if (shape) ref = cad_reference(*shape);
+  if (shape) ref = reference_of(ctx, *shape);
   return publish(ctx, check(m, extent, shape ? &ref : nullptr, ctx.threads(), known, moved), hint);
 }
 

@@ -91,6 +91,14 @@ Result check(const model::Mesh& m, Extent extent, const CadReference* cad, int t
 CadReference cad_reference(const cad::Shape& shape);
 inline constexpr double kReferenceAgreement = 1e-3;
 
+// The "cad_reference" artifact: cad_reference of a shape, stored beside it by the stage that
+// writes the fluid solid (heal), so that each mesh stage's contract reads it instead of
+// integrating every face and the volume again (DLR-F6: 64% of the sweep stage, and the same in
+// curve and optimise). JSON; its doubles read back bit for bit. record() takes it from the
+// inputs when the stage's shape comes from the stage that wrote it.
+void write_cad_reference(const CadReference& ref, const std::filesystem::path& path);
+CadReference read_cad_reference(const std::filesystem::path& path);  // throws StageError when unreadable
+
 // The volume the boundary faces of a volume mesh enclose (the volume clause's measure). A stage
 // that transforms a domain mesh without the CAD (split) compares its result with its input's.
 double enclosed_volume(const model::Mesh& m);

@@ -46,6 +46,7 @@ StageRegistrar reg({.kind = "curve",
                     .version = 3,  // 3: also stores the mesh's per-element quality ("quality")
                     .summary = "order-P mesh on the CAD, bottom-up: CAD curves, CAD surfaces in (u,v), the boundary layer following the curved wall, blended interiors",
                     .needs = {"mesh", "shape"},
+                    .reads = {"cad_reference"},
                     .produces = {{"mesh", "mesh"}, {"quality", "mesh_quality"}},
                     .run = run});
 

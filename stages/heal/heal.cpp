@@ -21,6 +21,7 @@
 #include "stages/cad/cad.hpp"
 #include "stages/cad/occt.hpp"
 #include "stages/cad/tag_rules.hpp"
+#include "stages/contract/contract.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -648,16 +649,20 @@ void run(StageContext& ctx) {
   st["tag_overrides"] = (int)P.at("tag_overrides").size();
   st["watertight"] = true;
   st["self_intersection_check"] = P.at("check_self_intersection");
-  out.save(ctx.output("shape", "shape"));
+  const std::filesystem::path saved = ctx.output("shape", "shape");
+  out.save(saved);
+  // the contract's figures of the shape as the mesh stages load it (the saved bytes, read back)
+  ctx.progress(0.95, "areas and volume for the mesh contract");
+  contract::write_cad_reference(contract::cad_reference(cad::Shape::load(saved)), ctx.output("cad_reference", "cad_reference"));
   ctx.progress(1.0, "done");
 }
 
 StageRegistrar reg({.kind = "heal",
-                    .version = 2,
+                    .version = 3,  // 3: also writes the CAD reference of the mesh contract
                     .summary = "sew, fix and close the CAD into a watertight fluid solid; refuse what cannot be repaired",
                     .libraries = {"OCCT " OCC_VERSION_COMPLETE},
                     .needs = {"shape"},
-                    .produces = {{"shape", "shape"}},
+                    .produces = {{"shape", "shape"}, {"cad_reference", "cad_reference"}},
                     .run = run});
 }  // namespace
 }  // namespace meshflow::heal

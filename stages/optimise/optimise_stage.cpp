@@ -148,7 +148,7 @@ StageRegistrar reg({.kind = "optimise",
                     .summary = "surface node optimisation: spring energy of high-order edges/faces in CAD parameter space, bounded L-BFGS-B, validity kept",
                     .libraries = {"LBFGSpp 0.1.0"},
                     .needs = {"mesh", "shape"},
-                    .reads = {"mesh_quality"},
+                    .reads = {"mesh_quality", "cad_reference"},
                     .produces = {{"mesh", "mesh"}, {"quality", "mesh_quality"}},
                     .run = run});
 

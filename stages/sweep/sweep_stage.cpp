@@ -78,7 +78,7 @@ StageRegistrar reg({.kind = "sweep",
                     .summary = "surface meshes of all faces (CDT in the parameter plane) and the one-layer prism/hex near field",
                     .libraries = {},
                     .needs = {"shape", "shell", "divisions"},
-                    .reads = {"periodic"},
+                    .reads = {"periodic", "cad_reference"},
                     .produces = {{"mesh", "mesh"}, {"quality", "mesh_quality"}},
                     .run = run});
 

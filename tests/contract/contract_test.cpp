@@ -3,6 +3,7 @@
 // integrated exactly.
 #include <doctest/doctest.h>
 
+#include "engine/stage.hpp"
 #include "stages/contract/contract.hpp"
 #include "stages/model/element.hpp"
 #include "stages/model/topology.hpp"
@@ -325,4 +326,34 @@ TEST_CASE("contract: meshflow contract FILE checks a mesh another tool wrote (Gm
   // a file it cannot read is bad input
   auto none = mftest::sh(exe + " contract /nonexistent.msh 2>&1");
   CHECK(none.code == 2);
+}
+
+TEST_CASE("contract: the CAD reference artifact reads back bit for bit, and an unreadable one is an error naming the file") {
+  contract::CadReference ref;
+  ref.volume = 1.0 / 3.0;
+  ref.volume_reliable = false;
+  ref.source = "the healed fluid solid";
+  ref.faces.push_back({1, std::nextafter(0.1, 1.0), "wall", true});
+  ref.faces.push_back({2, 2.0e-300, "", false});
+  ref.faces.push_back({7, 12345.678901234567, "farfield", true});
+  const auto dir = mftest::temp_dir("cad-reference");
+  contract::write_cad_reference(ref, dir / "r.json");
+  const contract::CadReference back = contract::read_cad_reference(dir / "r.json");
+  CHECK(back.volume == ref.volume);
+  CHECK(back.volume_reliable == ref.volume_reliable);
+  CHECK(back.source == ref.source);
+  REQUIRE(back.faces.size() == ref.faces.size());
+  for (std::size_t i = 0; i < ref.faces.size(); ++i) {
+    CHECK(back.faces[i].entity == ref.faces[i].entity);
+    CHECK(back.faces[i].area == ref.faces[i].area);
+    CHECK(back.faces[i].group == ref.faces[i].group);
+    CHECK(back.faces[i].reliable == ref.faces[i].reliable);
+  }
+  mftest::write_text(dir / "bad.json", "{\"format\": \"meshflow cad_reference 1\", \"volume\": 1}");
+  try {
+    contract::read_cad_reference(dir / "bad.json");
+    FAIL("no error");
+  } catch (const meshflow::StageError& e) {
+    CHECK(std::string(e.what()).find("bad.json") != std::string::npos);
+  }
 }
