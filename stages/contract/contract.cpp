@@ -8,6 +8,10 @@
 #include "stages/model/quality.hpp"
 #include "stages/model/topology.hpp"
 
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_invoke.h>
+#include <tbb/task_arena.h>
+
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -518,15 +522,28 @@ double enclosed_volume(const Mesh& m) {
   return flux / 3;
 }
 
-CadReference cad_reference(const cad::Shape& shape) {
+CadReference cad_reference(const cad::Shape& shape, int threads) {
   auto agree = [](double a, double b) { return std::abs(a - b) <= kReferenceAgreement * std::max(std::abs(a), std::abs(b)); };
+  // each figure on its own (the shape's const integrations may run concurrently: cad.hpp)
+  const int nf = shape.num_faces();
+  std::vector<double> fixed(nf), adaptive(nf);
+  double volume = 0, volume_adaptive = 0;
+  tbb::task_arena arena(std::max(1, threads));
+  arena.execute([&] {
+    tbb::parallel_invoke([&] { volume = shape.volume(); }, [&] { volume_adaptive = shape.volume(1e-7); },
+                         [&] {
+                           tbb::parallel_for(0, 2 * nf, [&](int k) {
+                             if (k < nf) fixed[k] = shape.face_area(k);
+                             else adaptive[k - nf] = shape.face_area(k - nf, 1e-7);
+                           });
+                         });
+  });
   CadReference ref;
-  ref.volume = shape.volume();
-  ref.volume_reliable = agree(ref.volume, shape.volume(1e-7));
-  for (int f = 0; f < shape.num_faces(); ++f) {
+  ref.volume = volume;
+  ref.volume_reliable = agree(volume, volume_adaptive);
+  for (int f = 0; f < nf; ++f) {
     cad::Tag t = shape.face_tag(f);
-    const double a = shape.face_area(f);
-    ref.faces.push_back({f + 1, a, t == cad::Tag::none ? "" : cad::tag_name(t), agree(a, shape.face_area(f, 1e-7))});
+    ref.faces.push_back({f + 1, fixed[f], t == cad::Tag::none ? "" : cad::tag_name(t), agree(fixed[f], adaptive[f])});
   }
   return ref;
 }
@@ -589,7 +606,7 @@ CadReference reference_of(StageContext& ctx, const cad::Shape& shape) {
   if (!shapes.empty())
     for (const Artifact* a : ctx.inputs_of("cad_reference"))
       if (a->stage == shapes[0]->stage) return read_cad_reference(a->path);
-  return cad_reference(shape);
+  return cad_reference(shape, ctx.threads());
 }
 
 model::MeshQuality record(StageContext& ctx, const Mesh& m, Extent extent, const cad::Shape* shape, const std::string& hint,

@@ -88,7 +88,7 @@ Result check(const model::Mesh& m, Extent extent, const CadReference* cad, int t
 // rule gives the demo's wing 2% less area than both its fixed rule and the order-4 mesh. A
 // figure is used only when the two agree to kReferenceAgreement; otherwise it is marked not
 // reliable, listed in stats.contract, and not compared (a face must still have elements).
-CadReference cad_reference(const cad::Shape& shape);
+CadReference cad_reference(const cad::Shape& shape, int threads = 1);
 inline constexpr double kReferenceAgreement = 1e-3;
 
 // The "cad_reference" artifact: cad_reference of a shape, stored beside it by the stage that

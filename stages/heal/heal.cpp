@@ -653,7 +653,7 @@ void run(StageContext& ctx) {
   out.save(saved);
   // the contract's figures of the shape as the mesh stages load it (the saved bytes, read back)
   ctx.progress(0.95, "areas and volume for the mesh contract");
-  contract::write_cad_reference(contract::cad_reference(cad::Shape::load(saved)), ctx.output("cad_reference", "cad_reference"));
+  contract::write_cad_reference(contract::cad_reference(cad::Shape::load(saved), ctx.threads()), ctx.output("cad_reference", "cad_reference"));
   ctx.progress(1.0, "done");
 }
 
