@@ -16,6 +16,7 @@
 #include <CGAL/property_map.h>
 #include <boost/iterator/counting_iterator.hpp>
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_sort.h>
 
 #include <algorithm>
 #include <chrono>
@@ -135,7 +136,8 @@ std::vector<std::pair<K::Point_3, std::int32_t>> distinct_points(const std::vect
   std::vector<std::int32_t> order(n);
   rep.assign(n, -1);
   std::iota(order.begin(), order.end(), 0);
-  std::sort(order.begin(), order.end(), [&](std::int32_t a, std::int32_t b) { return S[a].p != S[b].p ? S[a].p < S[b].p : a < b; });
+  // a total order (ties by index): the parallel sort gives the one sorted sequence
+  tbb::parallel_sort(order.begin(), order.end(), [&](std::int32_t a, std::int32_t b) { return S[a].p != S[b].p ? S[a].p < S[b].p : a < b; });
   std::vector<std::pair<K::Point_3, std::int32_t>> pts;
   for (std::size_t k = 0; k < order.size(); ++k) {
     std::int32_t i = order[k];
@@ -153,24 +155,24 @@ std::vector<std::pair<K::Point_3, std::int32_t>> distinct_points(const std::vect
   return pts;
 }
 
-// The finite cells (sorted vertex ids, circumcentres in parallel); each cell's info is its index
-// here, -1 for infinite cells.
+// The finite cells (sorted vertex ids, circumcentres: in parallel, each cell its own slot); each
+// cell's info is its index here, -1 for infinite cells.
 std::vector<CellRec> cell_records(DT& dt, const std::vector<Sample>& S) {
-  std::vector<CellRec> cells;
-  cells.reserve(dt.number_of_finite_cells());
+  std::vector<DT::Cell_handle> finite;
+  finite.reserve(dt.number_of_finite_cells());
   for (auto ch : dt.all_cell_handles()) {
-    if (dt.is_infinite(ch)) {
-      ch->info() = -1;
-      continue;
-    }
-    CellRec rec;
-    for (int j = 0; j < 4; ++j) rec.ids[j] = ch->vertex(j)->info();
-    std::sort(rec.ids.begin(), rec.ids.end());
-    ch->info() = static_cast<std::int32_t>(cells.size());
-    cells.push_back(rec);
+    ch->info() = -1;
+    if (!dt.is_infinite(ch)) finite.push_back(ch);
   }
+  std::vector<CellRec> cells(finite.size());
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, cells.size(), 1024), [&](const tbb::blocked_range<std::size_t>& r) {
-    for (std::size_t c = r.begin(); c != r.end(); ++c) circumcentre(S, cells[c]);
+    for (std::size_t c = r.begin(); c != r.end(); ++c) {
+      CellRec& rec = cells[c];
+      for (int j = 0; j < 4; ++j) rec.ids[j] = finite[c]->vertex(j)->info();
+      std::sort(rec.ids.begin(), rec.ids.end());
+      finite[c]->info() = static_cast<std::int32_t>(c);
+      circumcentre(S, rec);
+    }
   });
   return cells;
 }
@@ -221,7 +223,8 @@ std::vector<Cand> candidates(const std::vector<CellRec>& cells, const std::vecto
     if (pole_in[i] >= 0) cand.push_back({0, pole_in[i]});
     if (pole_out[i] >= 0) cand.push_back({1, pole_out[i]});
   }
-  std::sort(cand.begin(), cand.end(), [&](const Cand& a, const Cand& b) {
+  // distinct cells have distinct ids: candidates that compare equal are equal, any sort gives one sequence
+  tbb::parallel_sort(cand.begin(), cand.end(), [&](const Cand& a, const Cand& b) {
     return a.side != b.side ? a.side < b.side : cells[a.cell].ids < cells[b.cell].ids;
   });
   cand.erase(std::unique(cand.begin(), cand.end(), [](const Cand& a, const Cand& b) { return a.side == b.side && a.cell == b.cell; }),
