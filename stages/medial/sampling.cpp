@@ -69,12 +69,15 @@ std::array<std::int32_t, 3> face_set(std::vector<int> f) {
 
 void append(std::vector<Sample>& out, const std::vector<Sample>& more) { out.insert(out.end(), more.begin(), more.end()); }
 
-// A cell of a face's kd-split in (u,v).
+// A cell of a face's kd-split in (u,v), with its corner points when its parent evaluated them
+// (corner[i][j] at (u_i, v_j): the same parameters, so the same points).
 struct Cell {
   int f;
   double u0, u1, v0, v1;
   std::uint64_t key;
   int depth;
+  bool has_corners = false;
+  Vec3 corner[2][2]{};
 };
 
 // The sampling of faces, edges and vertices. Its const methods may run concurrently (they need a
@@ -90,7 +93,7 @@ class Sampler {
     for (int f : ids) {
       auto [u0, u1, v0, v1] = m_.face_bounds(f);
       if (!(u1 > u0) || !(v1 > v0)) continue;
-      items.push_back({{f, u0, u1, v0, v1, mix(0x5eedULL + static_cast<std::uint64_t>(f)), 0}, true, {}});
+      items.push_back({Cell{f, u0, u1, v0, v1, mix(0x5eedULL + static_cast<std::uint64_t>(f)), 0}, true, {}});
     }
     // The top of the trees level by level (in parallel), until there are enough open subtrees to
     // share out; then each open subtree depth first on its own.
@@ -167,7 +170,8 @@ class Sampler {
     double us[3] = {c.u0, 0.5 * (c.u0 + c.u1), c.u1}, vs[3] = {c.v0, 0.5 * (c.v0 + c.v1), c.v1};
     Vec3 P[3][3];
     for (int i = 0; i < 3; ++i)
-      for (int j = 0; j < 3; ++j) P[i][j] = m_.face_point(f, us[i], vs[j]);
+      for (int j = 0; j < 3; ++j)
+        P[i][j] = c.has_corners && i != 1 && j != 1 ? c.corner[i / 2][j / 2] : m_.face_point(f, us[i], vs[j]);
     double eu = 0, ev = 0;
     for (int k = 0; k < 3; ++k) {
       eu = std::max(eu, dist(P[0][k], P[1][k]) + dist(P[1][k], P[2][k]));
@@ -179,9 +183,11 @@ class Sampler {
       int nu = su ? 2 : 1, nv = sv ? 2 : 1;
       for (int a = 0; a < nu; ++a)
         for (int b = 0; b < nv; ++b) {
-          double a0 = su ? us[a] : c.u0, a1 = su ? us[a + 1] : c.u1;
-          double b0 = sv ? vs[b] : c.v0, b1 = sv ? vs[b + 1] : c.v1;
-          kids.push_back({f, a0, a1, b0, b1, mix(c.key * 5 + static_cast<std::uint64_t>(a * 2 + b + 1)), c.depth + 1});
+          const int i0 = su ? a : 0, i1 = su ? a + 1 : 2, j0 = sv ? b : 0, j1 = sv ? b + 1 : 2;  // in the 3x3 grid
+          Cell k{f, us[i0], us[i1], vs[j0], vs[j1], mix(c.key * 5 + static_cast<std::uint64_t>(a * 2 + b + 1)), c.depth + 1};
+          k.has_corners = true;
+          k.corner[0][0] = P[i0][j0], k.corner[0][1] = P[i0][j1], k.corner[1][0] = P[i1][j0], k.corner[1][1] = P[i1][j1];
+          kids.push_back(k);
         }
       return;
     }
