@@ -180,6 +180,7 @@ struct CoreTimes {
 };
 // Medial points, per-sample LFS, poles and halos from boundary samples (normals out of the
 // domain). Throws meshflow::StageError with fewer than 8 distinct samples or a flat set.
+// Parallel (oneTBB) in the caller's task arena; the result does not depend on its size.
 MedialObject medial_from_samples(std::vector<Sample> samples, const CoreOptions& opt,
                                  CoreTimes* times = nullptr);
 
@@ -202,6 +203,8 @@ class NearestIndex {
 // ── sampling (plain C++, any boundary representation) ────────────────────────────────────
 // A closed boundary: faces with a (u,v) parametrisation, edges, vertices. Normals point out of
 // the fluid domain. The stage implements it over cad::Shape; tests over analytic shapes.
+// The sampling calls its const queries from several threads at once: they must be safe to call
+// concurrently (the stage's CadModel classifies through one cad::Shape clone per thread).
 class BoundaryModel {
  public:
   virtual ~BoundaryModel() = default;
@@ -249,7 +252,9 @@ std::vector<Sample> sample_boundary(const BoundaryModel& model, const Params& pr
                                     const std::vector<Vec3>& source_p, const std::vector<double>& source_h);
 
 // The whole method: passes of sampling + core, feature-size refinement in between.
-// `progress(fraction, what)` may be empty.
+// `progress(fraction, what)` may be empty; it is called from the calling thread only.
+// Parallel in the caller's task arena (the stage runs it in one of its thread budget): every
+// loop writes per-index slots, reduced in index order, so the bytes do not depend on the threads.
 MedialObject compute(const BoundaryModel& model, const Params& prm, RunReport* report = nullptr,
                      const std::function<void(double, const std::string&)>& progress = {});
 

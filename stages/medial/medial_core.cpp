@@ -15,6 +15,8 @@
 #include <CGAL/Triangulation_vertex_base_with_info_3.h>
 #include <CGAL/property_map.h>
 #include <boost/iterator/counting_iterator.hpp>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_sort.h>
 
 #include <algorithm>
 #include <chrono>
@@ -123,13 +125,19 @@ std::vector<std::pair<std::int32_t, double>> NearestIndex::nearest(const Vec3& q
 }
 
 // ── the core ──────────────────────────────────────────────────────────────────────────────
-MedialObject medial_from_samples(std::vector<Sample> S, const CoreOptions& opt, CoreTimes* times) {
+// Every parallel loop below runs in the caller's task arena and writes per-index slots; what is
+// reduced is reduced serially in index order or by a total order (ties by sample ids), so the
+// result does not depend on the thread count nor on CGAL's cell and vertex order.
+namespace {
+
+// Distinct points (a vertex sampled twice is inserted once): rep[i] is the first sample at S[i].p.
+std::vector<std::pair<K::Point_3, std::int32_t>> distinct_points(const std::vector<Sample>& S, std::vector<std::int32_t>& rep) {
   const std::int32_t n = static_cast<std::int32_t>(S.size());
-  double t0 = now();
-  // Duplicated points (e.g. a vertex sampled twice) are inserted once; rep[i] is the first.
-  std::vector<std::int32_t> order(n), rep(n);
+  std::vector<std::int32_t> order(n);
+  rep.assign(n, -1);
   std::iota(order.begin(), order.end(), 0);
-  std::sort(order.begin(), order.end(), [&](std::int32_t a, std::int32_t b) { return S[a].p != S[b].p ? S[a].p < S[b].p : a < b; });
+  // a total order (ties by index): the parallel sort gives the one sorted sequence
+  tbb::parallel_sort(order.begin(), order.end(), [&](std::int32_t a, std::int32_t b) { return S[a].p != S[b].p ? S[a].p < S[b].p : a < b; });
   std::vector<std::pair<K::Point_3, std::int32_t>> pts;
   for (std::size_t k = 0; k < order.size(); ++k) {
     std::int32_t i = order[k];
@@ -144,47 +152,53 @@ MedialObject medial_from_samples(std::vector<Sample> S, const CoreOptions& opt, 
   }
   if (pts.size() < 8)
     throw StageError("medial: only " + std::to_string(pts.size()) + " distinct boundary samples; at least 8 are needed (decrease `spacing`)");
-  DT dt;
-  dt.insert(pts.begin(), pts.end());
-  if (dt.dimension() < 3)
-    throw StageError("medial: the boundary samples are coplanar (the solid is flat or empty); a medial object needs a 3D solid");
-  // Cells: sorted vertex ids and circumcentres.
-  std::vector<CellRec> cells;
-  cells.reserve(dt.number_of_finite_cells());
-  for (auto ch : dt.all_cell_handles()) {
-    if (dt.is_infinite(ch)) {
-      ch->info() = -1;
-      continue;
-    }
-    CellRec rec;
-    for (int j = 0; j < 4; ++j) rec.ids[j] = ch->vertex(j)->info();
-    std::sort(rec.ids.begin(), rec.ids.end());
-    circumcentre(S, rec);
-    ch->info() = static_cast<std::int32_t>(cells.size());
-    cells.push_back(rec);
-  }
-  double t1 = now();
+  return pts;
+}
 
-  // Poles: per sample the farthest Voronoi vertex of its cell on each side.
-  std::vector<DT::Vertex_handle> vh(n);
-  for (auto v : dt.finite_vertex_handles()) vh[v->info()] = v;
-  std::vector<std::int32_t> pole_in(n, -1), pole_out(n, -1);  // cell indices
-  std::vector<DT::Cell_handle> inc;
+// The finite cells (sorted vertex ids, circumcentres: in parallel, each cell its own slot); each
+// cell's info is its index here, -1 for infinite cells.
+std::vector<CellRec> cell_records(DT& dt, const std::vector<Sample>& S) {
+  std::vector<DT::Cell_handle> finite;
+  finite.reserve(dt.number_of_finite_cells());
+  for (auto ch : dt.all_cell_handles()) {
+    ch->info() = -1;
+    if (!dt.is_infinite(ch)) finite.push_back(ch);
+  }
+  std::vector<CellRec> cells(finite.size());
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, cells.size(), 1024), [&](const tbb::blocked_range<std::size_t>& r) {
+    for (std::size_t c = r.begin(); c != r.end(); ++c) {
+      CellRec& rec = cells[c];
+      for (int j = 0; j < 4; ++j) rec.ids[j] = finite[c]->vertex(j)->info();
+      std::sort(rec.ids.begin(), rec.ids.end());
+      finite[c]->info() = static_cast<std::int32_t>(c);
+      circumcentre(S, rec);
+    }
+  });
+  return cells;
+}
+
+// Poles: per sample the farthest Voronoi vertex of its cell on each side (ties by ids: a total
+// order, so the cells may come in any order). One pass over the cells, each telling its vertices.
+void find_poles(const DT& dt, const std::vector<CellRec>& cells, const std::vector<Sample>& S, const std::vector<std::int32_t>& rep,
+                std::vector<std::int32_t>& pole_in, std::vector<std::int32_t>& pole_out) {
+  const std::size_t n = S.size();
+  pole_in.assign(n, -1);
+  pole_out.assign(n, -1);
+  std::vector<char> hull(n, 0);
   auto better = [&](std::int32_t a, std::int32_t b) {  // a farther than b (ties by ids)
     if (b < 0) return true;
     return cells[a].r != cells[b].r ? cells[a].r > cells[b].r : cells[a].ids < cells[b].ids;
   };
-  for (std::int32_t i = 0; i < n; ++i) {
-    if (rep[i] != i) continue;
-    const Vec3& nrm = S[i].n;
-    if (dot(nrm, nrm) < 0.25) continue;  // no normal (a singular point): no poles
-    inc.clear();
-    dt.incident_cells(vh[i], std::back_inserter(inc));
-    bool hull = false;
-    for (auto ch : inc) {
-      std::int32_t ci = ch->info();
+  for (auto ch : dt.all_cell_handles()) {
+    const std::int32_t ci = ch->info();
+    for (int j = 0; j < 4; ++j) {
+      auto v = ch->vertex(j);
+      if (dt.is_infinite(v)) continue;
+      const std::int32_t i = v->info();
+      const Vec3& nrm = S[i].n;
+      if (rep[i] != i || dot(nrm, nrm) < 0.25) continue;  // no normal (a singular point): no poles
       if (ci < 0) {
-        hull = true;
+        hull[i] = 1;
         continue;
       }
       if (!cells[ci].valid) continue;
@@ -192,100 +206,129 @@ MedialObject medial_from_samples(std::vector<Sample> S, const CoreOptions& opt, 
       if (s < 0 && better(ci, pole_in[i])) pole_in[i] = ci;
       if (s > 0 && better(ci, pole_out[i])) pole_out[i] = ci;
     }
-    if (hull) pole_out[i] = -1;  // unbounded cell: the body-side pole is at infinity
   }
-  dt.clear();
+  for (std::size_t i = 0; i < n; ++i)
+    if (hull[i]) pole_out[i] = -1;  // unbounded cell: the body-side pole is at infinity
+}
 
-  // Candidate medial balls: (side, cell), filtered, sorted by (side, contacts).
-  struct Cand {
-    int side;
-    std::int32_t cell;
-  };
+struct Cand {
+  int side;
+  std::int32_t cell;
+};
+// Candidate medial balls: (side, cell) of every pole, sorted by (side, contacts), once each.
+std::vector<Cand> candidates(const std::vector<CellRec>& cells, const std::vector<std::int32_t>& pole_in,
+                             const std::vector<std::int32_t>& pole_out) {
   std::vector<Cand> cand;
-  for (std::int32_t i = 0; i < n; ++i) {
+  for (std::size_t i = 0; i < pole_in.size(); ++i) {
     if (pole_in[i] >= 0) cand.push_back({0, pole_in[i]});
     if (pole_out[i] >= 0) cand.push_back({1, pole_out[i]});
   }
-  std::sort(cand.begin(), cand.end(), [&](const Cand& a, const Cand& b) {
+  // distinct cells have distinct ids: candidates that compare equal are equal, any sort gives one sequence
+  tbb::parallel_sort(cand.begin(), cand.end(), [&](const Cand& a, const Cand& b) {
     return a.side != b.side ? a.side < b.side : cells[a.cell].ids < cells[b.cell].ids;
   });
   cand.erase(std::unique(cand.begin(), cand.end(), [](const Cand& a, const Cand& b) { return a.side == b.side && a.cell == b.cell; }),
              cand.end());
+  return cand;
+}
 
-  MedialObject M;
-  std::vector<std::int32_t> kept_in(cells.size(), -1), kept_out(cells.size(), -1);
+// One candidate through the filter (method, step 4): the medial point, or nothing.
+struct Judged {
+  bool kept = false, halo = false;
+  MedialPoint mp;
+  Halo h;
+};
+Judged judge(const Cand& cd, const CellRec& cr, const std::vector<Sample>& S, const CoreOptions& opt) {
+  Judged out;
+  const double sigma = cd.side == 0 ? -1.0 : 1.0, R = cr.r;
+  for (std::int32_t q : cr.ids) {
+    const Sample& s = S[q];
+    if (s.kind == 0 && sigma * dot(sub(cr.c, s.p), s.n) < -0.05 * R) return out;
+  }
+  double amax = 0;
+  for (int a = 0; a < 4; ++a)
+    for (int b = a + 1; b < 4; ++b)
+      amax = std::max(amax, angle_deg(sub(S[cr.ids[a]].p, cr.c), sub(S[cr.ids[b]].p, cr.c)));
+  if (amax < opt.min_object_angle_deg) return out;
+  out.kept = true;
+  MedialPoint& mp = out.mp;
+  mp.c = cr.c;
+  mp.ball_radius = R;
+  mp.contacts = cr.ids;
+  mp.side = cd.side == 0 ? Side::fluid : Side::body;
+  mp.object_angle_deg = static_cast<std::uint8_t>(std::lround(amax));
   const double cos_tangent = std::cos(25.0 * M_PI / 180.0);
-  for (const Cand& cd : cand) {
-    const CellRec& cr = cells[cd.cell];
-    const double sigma = cd.side == 0 ? -1.0 : 1.0, R = cr.r;
-    bool ok = true;
-    for (std::int32_t q : cr.ids) {
-      const Sample& s = S[q];
-      if (s.kind == 0 && sigma * dot(sub(cr.c, s.p), s.n) < -0.05 * R) ok = false;
-    }
-    if (!ok) continue;
-    double amax = 0;
-    for (int a = 0; a < 4; ++a)
-      for (int b = a + 1; b < 4; ++b)
-        amax = std::max(amax, angle_deg(sub(S[cr.ids[a]].p, cr.c), sub(S[cr.ids[b]].p, cr.c)));
-    if (amax < opt.min_object_angle_deg) continue;
-    MedialPoint mp;
-    mp.c = cr.c;
-    mp.ball_radius = R;
-    mp.contacts = cr.ids;
-    mp.side = cd.side == 0 ? Side::fluid : Side::body;
-    mp.object_angle_deg = static_cast<std::uint8_t>(std::lround(amax));
-    double r = R;
-    for (std::int32_t q : cr.ids) {
-      const Sample& s = S[q];
-      if (s.kind != 0 || R <= 0) continue;
-      Vec3 w = sub(s.p, cr.c);
-      double along = -sigma * dot(w, s.n);  // distance to the tangent plane at the contact
-      if (along >= cos_tangent * R) r = std::min(r, along);
-    }
-    mp.radius = std::max(r, 0.5 * R);
-    if (cd.side == 0) {
-      // halo: two contacts on faces with nothing in common; the pair of largest angle
-      double best = -1;
-      Halo h;
-      for (int a = 0; a < 4; ++a)
-        for (int b = a + 1; b < 4; ++b) {
-          const Sample &sa = S[cr.ids[a]], &sb = S[cr.ids[b]];
-          if (sa.faces[0] < 0 || sb.faces[0] < 0 || share_face(sa, sb)) continue;
-          double ang = angle_deg(sub(sa.p, cr.c), sub(sb.p, cr.c));
-          if (ang > best) {
-            best = ang;
-            h.sample_a = cr.ids[a];
-            h.sample_b = cr.ids[b];
-            h.face_a = sa.faces[0];
-            h.face_b = sb.faces[0];
-          }
-        }
-      if (best >= 0) {
-        mp.halo = true;
-        if (h.face_a > h.face_b) {
-          std::swap(h.face_a, h.face_b);
-          std::swap(h.sample_a, h.sample_b);
-        }
-        h.medial = static_cast<std::int32_t>(M.points.size());
-        M.halos.push_back(h);
+  double r = R;
+  for (std::int32_t q : cr.ids) {
+    const Sample& s = S[q];
+    if (s.kind != 0 || R <= 0) continue;
+    Vec3 w = sub(s.p, cr.c);
+    double along = -sigma * dot(w, s.n);  // distance to the tangent plane at the contact
+    if (along >= cos_tangent * R) r = std::min(r, along);
+  }
+  mp.radius = std::max(r, 0.5 * R);
+  if (cd.side != 0) return out;
+  // halo: two contacts on faces with nothing in common; the pair of largest angle
+  double best = -1;
+  Halo& h = out.h;
+  for (int a = 0; a < 4; ++a)
+    for (int b = a + 1; b < 4; ++b) {
+      const Sample &sa = S[cr.ids[a]], &sb = S[cr.ids[b]];
+      if (sa.faces[0] < 0 || sb.faces[0] < 0 || share_face(sa, sb)) continue;
+      double ang = angle_deg(sub(sa.p, cr.c), sub(sb.p, cr.c));
+      if (ang > best) {
+        best = ang;
+        h.sample_a = cr.ids[a];
+        h.sample_b = cr.ids[b];
+        h.face_a = sa.faces[0];
+        h.face_b = sb.faces[0];
       }
     }
-    (cd.side == 0 ? kept_in : kept_out)[cd.cell] = static_cast<std::int32_t>(M.points.size());
-    M.points.push_back(mp);
+  if (best >= 0) {
+    out.halo = mp.halo = true;
+    if (h.face_a > h.face_b) {
+      std::swap(h.face_a, h.face_b);
+      std::swap(h.sample_a, h.sample_b);
+    }
+  }
+  return out;
+}
+
+// The kept candidates in candidate order (judged in parallel); kept_in/out map a cell to its point.
+void keep_medial_points(const std::vector<Cand>& cand, const std::vector<CellRec>& cells, const std::vector<Sample>& S,
+                        const CoreOptions& opt, MedialObject& M, std::vector<std::int32_t>& kept_in,
+                        std::vector<std::int32_t>& kept_out) {
+  std::vector<Judged> judged(cand.size());
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, cand.size(), 512), [&](const tbb::blocked_range<std::size_t>& r) {
+    for (std::size_t k = r.begin(); k != r.end(); ++k) judged[k] = judge(cand[k], cells[cand[k].cell], S, opt);
+  });
+  kept_in.assign(cells.size(), -1);
+  kept_out.assign(cells.size(), -1);
+  for (std::size_t k = 0; k < cand.size(); ++k) {
+    if (!judged[k].kept) continue;
+    const std::int32_t idx = static_cast<std::int32_t>(M.points.size());
+    if (judged[k].halo) {
+      judged[k].h.medial = idx;
+      M.halos.push_back(judged[k].h);
+    }
+    (cand[k].side == 0 ? kept_in : kept_out)[cand[k].cell] = idx;
+    M.points.push_back(judged[k].mp);
   }
   std::sort(M.halos.begin(), M.halos.end(), [](const Halo& a, const Halo& b) {
     return std::tie(a.face_a, a.face_b, a.medial) < std::tie(b.face_a, b.face_b, b.medial);
   });
-  double t2 = now();
+}
 
-  // Per-sample results.
-  M.info.assign(n, SampleInfo{});
+// Per-sample results (method, steps 5-6), in parallel: each sample writes its own slot.
+void sample_info(const std::vector<Sample>& S, const std::vector<std::int32_t>& rep, const std::vector<std::int32_t>& pole_in,
+                 const std::vector<std::int32_t>& pole_out, const std::vector<std::int32_t>& kept_in,
+                 const std::vector<std::int32_t>& kept_out, MedialObject& M) {
+  M.info.assign(S.size(), SampleInfo{});
   std::vector<Vec3> centres;
   centres.reserve(M.points.size());
   for (auto& p : M.points) centres.push_back(p.c);
-  NearestIndex idx(centres);
-  for (std::int32_t i = 0; i < n; ++i) {
+  const NearestIndex idx(centres);  // built by its constructor: concurrent queries are safe
+  auto one = [&](std::size_t i) {
     std::int32_t r = rep[i];
     SampleInfo& si = M.info[i];
     if (pole_in[r] >= 0 && kept_in[pole_in[r]] >= 0) {
@@ -309,7 +352,32 @@ MedialObject medial_from_samples(std::vector<Sample> S, const CoreOptions& opt, 
       si.r_out = M.points[si.pole_out].radius;
     }
     if (idx.size()) si.lfs = idx.nearest(S[i].p, 1)[0].second;
-  }
+  };
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, S.size(), 256), [&](const tbb::blocked_range<std::size_t>& r) {
+    for (std::size_t i = r.begin(); i != r.end(); ++i) one(i);
+  });
+}
+
+}  // namespace
+
+MedialObject medial_from_samples(std::vector<Sample> S, const CoreOptions& opt, CoreTimes* times) {
+  double t0 = now();
+  std::vector<std::int32_t> rep;
+  auto pts = distinct_points(S, rep);
+  DT dt;
+  dt.insert(pts.begin(), pts.end());
+  if (dt.dimension() < 3)
+    throw StageError("medial: the boundary samples are coplanar (the solid is flat or empty); a medial object needs a 3D solid");
+  std::vector<CellRec> cells = cell_records(dt, S);
+  double t1 = now();
+  std::vector<std::int32_t> pole_in, pole_out;  // cell indices
+  find_poles(dt, cells, S, rep, pole_in, pole_out);
+  dt.clear();
+  MedialObject M;
+  std::vector<std::int32_t> kept_in, kept_out;
+  keep_medial_points(candidates(cells, pole_in, pole_out), cells, S, opt, M, kept_in, kept_out);
+  double t2 = now();
+  sample_info(S, rep, pole_in, pole_out, kept_in, kept_out, M);
   M.samples = std::move(S);
   double t3 = now();
   if (times) {

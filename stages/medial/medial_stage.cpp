@@ -8,12 +8,15 @@
 
 #include <CGAL/version_macros.h>  // version string only (no CGAL code)
 #include <nlohmann/json.hpp>
+#include <tbb/enumerable_thread_specific.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <memory>
 #include <set>
-#include <thread>
 
 namespace meshflow::medial {
 namespace {
@@ -27,10 +30,22 @@ Vec3 unit(Vec3 a) {
   return {a[0] / l, a[1] / l, a[2] / l};
 }
 
-// The CAD shape seen as a BoundaryModel.
+// One cad::Shape clone per thread (lazily, on the thread's first use): face_contains_uv and the
+// project_* queries fill per-shape caches (cad.hpp), so concurrent callers must not share one.
+class ShapeClones {
+ public:
+  explicit ShapeClones(const cad::Shape& s) : clones_([&s] { return std::make_shared<cad::Shape>(s.clone()); }) {}
+  const cad::Shape& local() const { return *clones_.local(); }
+
+ private:
+  mutable tbb::enumerable_thread_specific<std::shared_ptr<cad::Shape>> clones_;
+};
+
+// The CAD shape seen as a BoundaryModel. Immutable after construction; its const queries may run
+// concurrently (the sampling's parallel loops): the classifier's caches live in per-thread clones.
 class CadModel : public BoundaryModel {
  public:
-  CadModel(const cad::Shape& s, const std::set<cad::Tag>& refine) : s_(s) {
+  CadModel(const cad::Shape& s, const std::set<cad::Tag>& refine) : s_(s), clones_(s) {
     refined_.resize(s.num_faces());
     planar_.resize(s.num_faces());
     for (int f = 0; f < s.num_faces(); ++f) planar_[f] = s.face_surface_type(f) == "plane";
@@ -79,7 +94,7 @@ class CadModel : public BoundaryModel {
   // OCCT classifier, as do faces whose polygons could not be built or disagree with it (build_poly).
   bool face_contains(int f, double u, double v) const override {
     const FacePoly& fp = polys_[f];
-    if (!fp.ok) return s_.face_contains_uv(f, u, v, 1e-9);
+    if (!fp.ok) return clones_.local().face_contains_uv(f, u, v, 1e-9);
     return polygon_contains(f, fp, u, v);
   }
   bool face_refined(int f) const override { return refined_[f]; }
@@ -116,6 +131,7 @@ class CadModel : public BoundaryModel {
 
  private:
   const cad::Shape& s_;
+  ShapeClones clones_;
   std::vector<char> refined_, planar_;
   struct FacePoly {
     bool ok = false;
@@ -157,7 +173,7 @@ class CadModel : public BoundaryModel {
         d2min = std::min(d2min, eu * eu + ev * ev);
       }
     }
-    if (std::sqrt(d2min) <= fp.band) return s_.face_contains_uv(f, u, v, 1e-9);
+    if (std::sqrt(d2min) <= fp.band) return clones_.local().face_contains_uv(f, u, v, 1e-9);
     return in;
   }
   // A wire as a uv polygon, each use on the p-curve its orientation names, or (by_continuity) a
@@ -206,7 +222,7 @@ class CadModel : public BoundaryModel {
         if (!(l > 0)) continue;
         for (double side : {-1.0, 1.0}) {
           double u = 0.5 * (ua + ub) - side * d * (vb - va) / l, v = 0.5 * (va + vb) + side * d * (ub - ua) / l;
-          if (polygon_contains(f, fp, u, v) != s_.face_contains_uv(f, u, v, 1e-9)) return false;
+          if (polygon_contains(f, fp, u, v) != clones_.local().face_contains_uv(f, u, v, 1e-9)) return false;
         }
       }
     return true;
@@ -293,56 +309,63 @@ Foot newton_foot(const cad::Shape& s, int f, const Vec3& c, double u, double v, 
 // face (projection inside the trimmed face), never above the empty-ball radius. Planar faces
 // need no projection (the distance to the plane of a contact sample is exact). A foot point within
 // two spacings of a contact sample on that face is inside it; farther ones are classified.
-// Parallel over medial points with one Shape clone per thread (each point is independent, so
-// the result does not depend on the thread count).
-long refine_radii(const cad::Shape& shape, MedialObject& M, int threads) {
-  const int nf = shape.num_faces();
-  std::vector<char> planar(nf);
-  for (int f = 0; f < nf; ++f) planar[f] = shape.face_surface_type(f) == "plane";
-  std::vector<cad::UVBounds> bounds(nf);
-  for (int f = 0; f < nf; ++f) bounds[f] = shape.face_uv_bounds(f);
-  const std::size_t np = M.points.size();
-  threads = std::max(1, std::min(threads, static_cast<int>(np / 2000) + 1));
-  std::vector<long> counts(threads, 0);
-  auto work = [&](int t) {
-    cad::Shape mine = shape.clone();
-    for (std::size_t i = t; i < np; i += threads) {
-      MedialPoint& p = M.points[i];
-      std::vector<int> done;
-      double r = p.ball_radius;
-      bool any = false;
-      for (auto q : p.contacts) {
-        const Sample& s = M.samples[q];
-        if (s.kind != 0 || std::find(done.begin(), done.end(), s.id) != done.end()) continue;
-        done.push_back(s.id);
-        if (planar[s.id]) {
-          double d = std::abs((p.c[0] - s.p[0]) * s.n[0] + (p.c[1] - s.p[1]) * s.n[1] + (p.c[2] - s.p[2]) * s.n[2]);
-          r = std::min(r, d);
-          any = true;
-          continue;
-        }
-        Foot ft = newton_foot(mine, s.id, p.c, s.u, s.v, bounds[s.id]);
-        if (!std::isfinite(ft.distance)) continue;
-        double dq = std::hypot(ft.p[0] - s.p[0], ft.p[1] - s.p[1], ft.p[2] - s.p[2]);
-        if (dq > 2 * s.h && !mine.face_contains_uv(s.id, ft.u, ft.v, 1e-7)) continue;
-        r = std::min(r, ft.distance);
-        any = true;
-        ++counts[t];
-      }
-      if (any) p.radius = r;
+struct FaceTables {
+  std::vector<char> planar;
+  std::vector<cad::UVBounds> bounds;
+};
+// One medial point (`mine`: this thread's clone); returns the number of projections accepted.
+int refine_point(const cad::Shape& mine, const FaceTables& ft, const std::vector<Sample>& S, MedialPoint& p) {
+  std::vector<int> done;
+  double r = p.ball_radius;
+  bool any = false;
+  int projected = 0;
+  for (auto q : p.contacts) {
+    const Sample& s = S[q];
+    if (s.kind != 0 || std::find(done.begin(), done.end(), s.id) != done.end()) continue;
+    done.push_back(s.id);
+    if (ft.planar[s.id]) {
+      double d = std::abs((p.c[0] - s.p[0]) * s.n[0] + (p.c[1] - s.p[1]) * s.n[1] + (p.c[2] - s.p[2]) * s.n[2]);
+      r = std::min(r, d);
+      any = true;
+      continue;
     }
-  };
-  std::vector<std::thread> pool;
-  for (int t = 1; t < threads; ++t) pool.emplace_back(work, t);
-  work(0);
-  for (auto& th : pool) th.join();
+    Foot f = newton_foot(mine, s.id, p.c, s.u, s.v, ft.bounds[s.id]);
+    if (!std::isfinite(f.distance)) continue;
+    double dq = std::hypot(f.p[0] - s.p[0], f.p[1] - s.p[1], f.p[2] - s.p[2]);
+    if (dq > 2 * s.h && !mine.face_contains_uv(s.id, f.u, f.v, 1e-7)) continue;
+    r = std::min(r, f.distance);
+    any = true;
+    ++projected;
+  }
+  if (any) p.radius = r;
+  return projected;
+}
+
+// Parallel over medial points (in the caller's task arena) with one Shape clone per thread: each
+// point is independent and writes only itself, so the result does not depend on the thread count.
+long refine_radii(const cad::Shape& shape, MedialObject& M) {
+  const int nf = shape.num_faces();
+  FaceTables ft;
+  ft.planar.resize(nf);
+  ft.bounds.resize(nf);
+  for (int f = 0; f < nf; ++f) {
+    ft.planar[f] = shape.face_surface_type(f) == "plane";
+    ft.bounds[f] = shape.face_uv_bounds(f);
+  }
+  const std::size_t np = M.points.size();
+  std::vector<int> counts(np, 0);
+  ShapeClones clones(shape);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, np, 64), [&](const tbb::blocked_range<std::size_t>& rg) {
+    const cad::Shape& mine = clones.local();
+    for (std::size_t i = rg.begin(); i != rg.end(); ++i) counts[i] = refine_point(mine, ft, M.samples, M.points[i]);
+  });
   for (std::size_t i = 0; i < M.info.size(); ++i) {
     auto& si = M.info[i];
     if (si.pole_in >= 0) si.r_in = M.points[si.pole_in].radius;
     if (si.pole_out >= 0) si.r_out = M.points[si.pole_out].radius;
   }
   long total = 0;
-  for (long c : counts) total += c;
+  for (int c : counts) total += c;
   return total;
 }
 
@@ -350,9 +373,7 @@ double now() {
   return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
 }
 
-void run(StageContext& ctx) {
-  const auto& P = ctx.params();
-  double t0 = now();
+cad::Shape load_closed_solid(StageContext& ctx) {
   cad::Shape shape = cad::Shape::load(ctx.input("shape").path);
   if (shape.num_solids() < 1)
     throw StageError("medial: the input shape has no solid; the medial object needs the closed fluid solid: put a `heal` stage "
@@ -360,32 +381,11 @@ void run(StageContext& ctx) {
   if (auto fe = shape.free_edges(); !fe.empty())
     throw StageError("medial: the input shape is not closed (" + std::to_string(fe.size()) + " free edges, e.g. edge " +
                      std::to_string(fe[0]) + "); heal it first (stage kind `heal`)");
-  std::set<cad::Tag> refine;
-  for (auto& t : P.at("refine_tags")) refine.insert(cad::tag_from_name(t.get<std::string>()));
-  CadModel model(shape, refine);
-  if (model.all_refined_fallback())
-    ctx.log("medial: no face carries one of refine_tags; all faces are refined");
-  const auto [by_continuity, refused] = model.polygon_fixes();
-  if (by_continuity + refused > 0)
-    ctx.log("medial: " + std::to_string(by_continuity) + " face(s) with a seam classified with its p-curves chosen by continuity, " +
-            std::to_string(refused) + " by OCCT's classifier alone (their uv polygon as the wire names it disagreed with OCCT)");
-  Params prm = Params::from_json(P);
-  RunReport rep;
-  MedialObject M = compute(model, prm, &rep, [&](double f, const std::string& w) { ctx.progress(f, w); });
-  double t1 = now();
-  long projected = 0;
-  if (P.at("refine_radius").get<bool>()) {
-    ctx.progress(0.95, "projecting medial points");
-    projected = refine_radii(shape, M, ctx.threads());
-  }
-  double t2 = now();
-  nlohmann::json h = nlohmann::json::parse(M.header);
-  h["units"] = shape.units();
-  h["params"]["refine_radius"] = P.at("refine_radius");
-  h["params"]["refine_tags"] = P.at("refine_tags");
-  M.header = h.dump();
-  write(M, ctx.output("medial", "medial"));
+  return shape;
+}
 
+void write_stats(StageContext& ctx, const MedialObject& M, const RunReport& rep, long projected, std::pair<long, long> fixes,
+                 double t_projection, double t_total) {
   auto& st = ctx.stats();
   nlohmann::json sum = M.summary();
   st["samples"] = M.samples.size();
@@ -397,10 +397,49 @@ void run(StageContext& ctx) {
   st["radius_body"] = sum["radius_body"];
   st["lfs_walls"] = sum["lfs_walls"];
   st["projections"] = projected;
-  if (by_continuity + refused > 0)  // only when it acts: other medial stats keep their bytes
-    st["uv_polygons"] = {{"seam_by_continuity", by_continuity}, {"occt_only", refused}};
+  if (fixes.first + fixes.second > 0)  // only when it acts: other medial stats keep their bytes
+    st["uv_polygons"] = {{"seam_by_continuity", fixes.first}, {"occt_only", fixes.second}};
   st["time"] = {{"sampling", rep.t_sampling}, {"delaunay", rep.t_delaunay}, {"poles", rep.t_poles},
-                {"lfs", rep.t_lfs},           {"projection", t2 - t1},      {"total", now() - t0}};
+                {"lfs", rep.t_lfs},           {"projection", t_projection}, {"total", t_total}};
+}
+
+// Everything parallel (sampling, core, projections) runs in a task arena of the stage's thread
+// budget; every parallel loop writes per-index slots, so the bytes do not depend on it.
+void run(StageContext& ctx) {
+  const auto& P = ctx.params();
+  double t0 = now();
+  cad::Shape shape = load_closed_solid(ctx);
+  std::set<cad::Tag> refine;
+  for (auto& t : P.at("refine_tags")) refine.insert(cad::tag_from_name(t.get<std::string>()));
+  CadModel model(shape, refine);
+  if (model.all_refined_fallback())
+    ctx.log("medial: no face carries one of refine_tags; all faces are refined");
+  const auto [by_continuity, refused] = model.polygon_fixes();
+  if (by_continuity + refused > 0)
+    ctx.log("medial: " + std::to_string(by_continuity) + " face(s) with a seam classified with its p-curves chosen by continuity, " +
+            std::to_string(refused) + " by OCCT's classifier alone (their uv polygon as the wire names it disagreed with OCCT)");
+  Params prm = Params::from_json(P);
+  RunReport rep;
+  MedialObject M;
+  long projected = 0;
+  double t1 = 0, t2 = 0;
+  tbb::task_arena arena(std::max(1, ctx.threads()));
+  arena.execute([&] {
+    M = compute(model, prm, &rep, [&](double f, const std::string& w) { ctx.progress(f, w); });
+    t1 = now();
+    if (P.at("refine_radius").get<bool>()) {
+      ctx.progress(0.95, "projecting medial points");
+      projected = refine_radii(shape, M);
+    }
+    t2 = now();
+  });
+  nlohmann::json h = nlohmann::json::parse(M.header);
+  h["units"] = shape.units();
+  h["params"]["refine_radius"] = P.at("refine_radius");
+  h["params"]["refine_tags"] = P.at("refine_tags");
+  M.header = h.dump();
+  write(M, ctx.output("medial", "medial"));
+  write_stats(ctx, M, rep, projected, {by_continuity, refused}, t2 - t1, now() - t0);
   ctx.progress(1.0, "done");
 }
 

@@ -5,6 +5,7 @@
 #include "engine/stage.hpp"
 
 #include <nlohmann/json.hpp>
+#include <tbb/parallel_for.h>
 
 #include <algorithm>
 #include <chrono>
@@ -61,63 +62,153 @@ std::array<std::int32_t, 3> face_set(std::vector<int> f) {
   return a;
 }
 
+[[noreturn]] void too_many_samples(const Params& prm) {
+  throw StageError("medial: more than max_samples = " + std::to_string(prm.max_samples) +
+                   " boundary samples would be needed; increase `spacing`/`min_spacing` or `max_samples`");
+}
+
+void append(std::vector<Sample>& out, const std::vector<Sample>& more) { out.insert(out.end(), more.begin(), more.end()); }
+
+// A cell of a face's kd-split in (u,v), with its corner points when its parent evaluated them
+// (corner[i][j] at (u_i, v_j): the same parameters, so the same points).
+struct Cell {
+  int f;
+  double u0, u1, v0, v1;
+  std::uint64_t key;
+  int depth;
+  bool has_corners = false;
+  Vec3 corner[2][2]{};
+};
+
+// The sampling of faces, edges and vertices. Its const methods may run concurrently (they need a
+// model whose const queries may): the parallel loops below give every face subtree, edge and
+// vertex its own output vector and concatenate them in the serial order (faces by id, each in
+// depth-first order of its cells, then edges, then vertices), whatever the thread count.
 class Sampler {
  public:
   Sampler(const BoundaryModel& m, const Params& prm, const Field& fld) : m_(m), prm_(prm), f_(fld) {}
 
-  void face(int f, std::vector<Sample>& out) {
-    auto [u0, u1, v0, v1] = m_.face_bounds(f);
-    if (!(u1 > u0) || !(v1 > v0)) return;
-    const bool refined = m_.face_refined(f);
-    struct Cell {
-      double u0, u1, v0, v1;
-      std::uint64_t key;
-      int depth;
-    };
-    std::vector<Cell> stack{{u0, u1, v0, v1, mix(0x5eedULL + static_cast<std::uint64_t>(f)), 0}};
+  std::vector<Sample> faces(const std::vector<int>& ids) const {
+    std::vector<Item> items;
+    for (int f : ids) {
+      auto [u0, u1, v0, v1] = m_.face_bounds(f);
+      if (!(u1 > u0) || !(v1 > v0)) continue;
+      items.push_back({Cell{f, u0, u1, v0, v1, mix(0x5eedULL + static_cast<std::uint64_t>(f)), 0}, true, {}});
+    }
+    // The top of the trees level by level (in parallel), until there are enough open subtrees to
+    // share out; then each open subtree depth first on its own.
+    for (int round = 0; round < 8 && open_count(items) > 0 && open_count(items) < 256; ++round) items = expand(items);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, items.size(), 1), [&](const tbb::blocked_range<std::size_t>& r) {
+      for (std::size_t i = r.begin(); i != r.end(); ++i)
+        if (items[i].open) subtree(items[i].c, items[i].out);
+    });
+    std::vector<Sample> out;
+    for (auto& it : items) append(out, it.out);
+    return out;
+  }
+
+  std::vector<Sample> edges(const std::vector<int>& ids) const {
+    std::vector<std::vector<Sample>> per(ids.size());
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, ids.size(), 1), [&](const tbb::blocked_range<std::size_t>& r) {
+      for (std::size_t i = r.begin(); i != r.end(); ++i) edge(ids[i], per[i]);
+    });
+    std::vector<Sample> out;
+    for (auto& p : per) append(out, p);
+    return out;
+  }
+
+  std::vector<Sample> vertices(const std::vector<int>& ids) const {
+    std::vector<std::vector<Sample>> per(ids.size());
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, ids.size(), 16), [&](const tbb::blocked_range<std::size_t>& r) {
+      for (std::size_t i = r.begin(); i != r.end(); ++i) vertex(ids[i], per[i]);
+    });
+    std::vector<Sample> out;
+    for (auto& p : per) append(out, p);
+    return out;
+  }
+
+ private:
+  // A cell still to visit (open) or the samples that took its place.
+  struct Item {
+    Cell c;
+    bool open;
+    std::vector<Sample> out;
+  };
+  static std::size_t open_count(const std::vector<Item>& items) {
+    return std::count_if(items.begin(), items.end(), [](const Item& it) { return it.open; });
+  }
+  // Visits every open cell (in parallel); each is replaced, in place, by its children or its sample.
+  std::vector<Item> expand(std::vector<Item>& items) const {
+    std::vector<std::vector<Cell>> kids(items.size());
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, items.size(), 1), [&](const tbb::blocked_range<std::size_t>& r) {
+      for (std::size_t i = r.begin(); i != r.end(); ++i)
+        if (items[i].open) visit(items[i].c, kids[i], items[i].out);
+    });
+    std::vector<Item> next;
+    for (std::size_t i = 0; i < items.size(); ++i) {
+      if (!items[i].open || !items[i].out.empty()) next.push_back({items[i].c, false, std::move(items[i].out)});
+      for (const Cell& k : kids[i]) next.push_back({k, true, {}});
+    }
+    return next;
+  }
+  // A cell and everything below it, depth first (children in the order visit gives them).
+  void subtree(const Cell& root, std::vector<Sample>& out) const {
+    std::vector<Cell> stack{root}, kids;
     while (!stack.empty()) {
       Cell c = stack.back();
       stack.pop_back();
-      double us[3] = {c.u0, 0.5 * (c.u0 + c.u1), c.u1}, vs[3] = {c.v0, 0.5 * (c.v0 + c.v1), c.v1};
-      Vec3 P[3][3];
-      for (int i = 0; i < 3; ++i)
-        for (int j = 0; j < 3; ++j) P[i][j] = m_.face_point(f, us[i], vs[j]);
-      double eu = 0, ev = 0;
-      for (int k = 0; k < 3; ++k) {
-        eu = std::max(eu, dist(P[0][k], P[1][k]) + dist(P[1][k], P[2][k]));
-        ev = std::max(ev, dist(P[k][0], P[k][1]) + dist(P[k][1], P[k][2]));
-      }
-      double h = f_(refined, P[1][1], m_.face_curvature(f, us[1], vs[1]));
-      bool su = c.depth < 2 || (eu > h && c.depth < 64), sv = c.depth < 2 || (ev > h && c.depth < 64);
-      if (su || sv) {
-        int nu = su ? 2 : 1, nv = sv ? 2 : 1;
-        for (int a = nu - 1; a >= 0; --a)
-          for (int b = nv - 1; b >= 0; --b) {
-            double a0 = su ? us[a] : c.u0, a1 = su ? us[a + 1] : c.u1;
-            double b0 = sv ? vs[b] : c.v0, b1 = sv ? vs[b + 1] : c.v1;
-            stack.push_back({a0, a1, b0, b1, mix(c.key * 5 + static_cast<std::uint64_t>(a * 2 + b + 1)), c.depth + 1});
-          }
-        continue;
-      }
-      double u = us[1] + jitter(c.key, 0.2) * (c.u1 - c.u0), v = vs[1] + jitter(c.key ^ 0xabcdefULL, 0.2) * (c.v1 - c.v0);
-      if (!m_.face_contains(f, u, v)) continue;
-      Vec3 n = m_.face_normal(f, u, v);
-      if (n[0] * n[0] + n[1] * n[1] + n[2] * n[2] < 0.25) continue;  // singular point
-      Sample s;
-      s.p = m_.face_point(f, u, v);
-      s.n = n;
-      s.u = u;
-      s.v = v;
-      s.h = std::max(eu, ev);
-      s.kind = 0;
-      s.id = f;
-      s.faces = {f, -1, -1};
-      s.refined = refined;
-      push(out, s);
+      kids.clear();
+      visit(c, kids, out);
+      stack.insert(stack.end(), kids.rbegin(), kids.rend());
     }
   }
+  // One cell: split it (its children into `kids`, in sampling order) while its 3D extent along u
+  // or v exceeds the spacing there, else one sample near its centre if inside the trimmed face.
+  void visit(const Cell& c, std::vector<Cell>& kids, std::vector<Sample>& out) const {
+    const int f = c.f;
+    const bool refined = m_.face_refined(f);
+    double us[3] = {c.u0, 0.5 * (c.u0 + c.u1), c.u1}, vs[3] = {c.v0, 0.5 * (c.v0 + c.v1), c.v1};
+    Vec3 P[3][3];
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j)
+        P[i][j] = c.has_corners && i != 1 && j != 1 ? c.corner[i / 2][j / 2] : m_.face_point(f, us[i], vs[j]);
+    double eu = 0, ev = 0;
+    for (int k = 0; k < 3; ++k) {
+      eu = std::max(eu, dist(P[0][k], P[1][k]) + dist(P[1][k], P[2][k]));
+      ev = std::max(ev, dist(P[k][0], P[k][1]) + dist(P[k][1], P[k][2]));
+    }
+    double h = f_(refined, P[1][1], m_.face_curvature(f, us[1], vs[1]));
+    bool su = c.depth < 2 || (eu > h && c.depth < 64), sv = c.depth < 2 || (ev > h && c.depth < 64);
+    if (su || sv) {
+      int nu = su ? 2 : 1, nv = sv ? 2 : 1;
+      for (int a = 0; a < nu; ++a)
+        for (int b = 0; b < nv; ++b) {
+          const int i0 = su ? a : 0, i1 = su ? a + 1 : 2, j0 = sv ? b : 0, j1 = sv ? b + 1 : 2;  // in the 3x3 grid
+          Cell k{f, us[i0], us[i1], vs[j0], vs[j1], mix(c.key * 5 + static_cast<std::uint64_t>(a * 2 + b + 1)), c.depth + 1};
+          k.has_corners = true;
+          k.corner[0][0] = P[i0][j0], k.corner[0][1] = P[i0][j1], k.corner[1][0] = P[i1][j0], k.corner[1][1] = P[i1][j1];
+          kids.push_back(k);
+        }
+      return;
+    }
+    double u = us[1] + jitter(c.key, 0.2) * (c.u1 - c.u0), v = vs[1] + jitter(c.key ^ 0xabcdefULL, 0.2) * (c.v1 - c.v0);
+    if (!m_.face_contains(f, u, v)) return;
+    Vec3 n = m_.face_normal(f, u, v);
+    if (n[0] * n[0] + n[1] * n[1] + n[2] * n[2] < 0.25) return;  // singular point
+    Sample s;
+    s.p = m_.face_point(f, u, v);
+    s.n = n;
+    s.u = u;
+    s.v = v;
+    s.h = std::max(eu, ev);
+    s.kind = 0;
+    s.id = f;
+    s.faces = {f, -1, -1};
+    s.refined = refined;
+    push(out, s);
+  }
 
-  void edge(int e, std::vector<Sample>& out) {
+  void edge(int e, std::vector<Sample>& out) const {
     if (m_.edge_degenerate(e)) return;
     auto fs = m_.edge_faces(e);
     bool refined = false;
@@ -162,7 +253,7 @@ class Sampler {
     }
   }
 
-  void vertex(int v, std::vector<Sample>& out) {
+  void vertex(int v, std::vector<Sample>& out) const {
     auto fs = m_.vertex_faces(v);
     if (fs.empty()) return;
     Sample s;
@@ -177,11 +268,8 @@ class Sampler {
     push(out, s);
   }
 
- private:
-  void push(std::vector<Sample>& out, const Sample& s) {
-    if (static_cast<long>(out.size()) >= prm_.max_samples)
-      throw StageError("medial: more than max_samples = " + std::to_string(prm_.max_samples) +
-                       " boundary samples would be needed; increase `spacing`/`min_spacing` or `max_samples`");
+  void push(std::vector<Sample>& out, const Sample& s) const {
+    if (static_cast<long>(out.size()) >= prm_.max_samples) too_many_samples(prm_);
     out.push_back(s);
   }
   const BoundaryModel& m_;
@@ -251,14 +339,18 @@ Field base_field(const Params& prm, const Scales& sc) {
 // Samples everything (or only what touches refined faces).
 std::vector<Sample> sample_with(const BoundaryModel& m, const Params& prm, const Field& fld, const Scales& sc,
                                 bool refined_only) {
-  std::vector<Sample> out;
-  Sampler s(m, prm, fld);
+  std::vector<int> fs, es, vs;
   for (int f = 0; f < m.num_faces(); ++f)
-    if (!refined_only || m.face_refined(f)) s.face(f, out);
+    if (!refined_only || m.face_refined(f)) fs.push_back(f);
   for (int e = 0; e < m.num_edges(); ++e)
-    if (!refined_only || sc.edge_refined[e]) s.edge(e, out);
+    if (!refined_only || sc.edge_refined[e]) es.push_back(e);
   for (int v = 0; v < m.num_vertices(); ++v)
-    if (!refined_only || sc.vertex_refined[v]) s.vertex(v, out);
+    if (!refined_only || sc.vertex_refined[v]) vs.push_back(v);
+  Sampler s(m, prm, fld);
+  std::vector<Sample> out = s.faces(fs);
+  append(out, s.edges(es));
+  append(out, s.vertices(vs));
+  if (static_cast<long>(out.size()) > prm.max_samples) too_many_samples(prm);
   return out;
 }
 
@@ -344,16 +436,20 @@ MedialObject compute(const BoundaryModel& model, const Params& prm, RunReport* r
       for (auto q : p.contacts) touches |= M.samples[q].refined;
       if (touches) rel.push_back(p.c);
     }
-    src_p.clear();
-    src_h.clear();
     std::unique_ptr<NearestIndex> idx;
     if (!rel.empty()) idx = std::make_unique<NearestIndex>(rel);
-    for (auto& s : M.samples) {
-      double target = s.h;
-      if (idx) target = std::min(target, std::max(base.h_min, prm.lfs_fraction * idx->nearest(s.p, 1)[0].second));
-      src_p.push_back(s.p);
-      src_h.push_back(target);
-    }
+    const std::size_t ns = M.samples.size();
+    src_p.resize(ns);
+    src_h.resize(ns);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, ns, 256), [&](const tbb::blocked_range<std::size_t>& r) {
+      for (std::size_t i = r.begin(); i != r.end(); ++i) {
+        const Sample& s = M.samples[i];
+        double target = s.h;
+        if (idx) target = std::min(target, std::max(base.h_min, prm.lfs_fraction * idx->nearest(s.p, 1)[0].second));
+        src_p[i] = s.p;
+        src_h[i] = target;
+      }
+    });
   }
   rep.t_delaunay = ct.delaunay;
   rep.t_poles = ct.poles;

@@ -82,10 +82,11 @@ class TestContext : public StageContext {
   }
   void log(const std::string& line) override { log_.push_back(line); }
   nlohmann::json& stats() override { return stats_; }
-  int threads() const override { return 1; }
+  int threads() const override { return threads_; }
 
   std::vector<std::string> log_;
   bool progress_ok_ = true;
+  int threads_ = 1;  // the thread budget the stage is given
   nlohmann::json stats_ = nlohmann::json::object();
 
  private:

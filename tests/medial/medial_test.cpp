@@ -9,6 +9,8 @@
 #include "engine/stage.hpp"
 #include "stages/medial/medial.hpp"
 
+#include <tbb/task_arena.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -170,6 +172,28 @@ TEST_CASE("concave 90 degree corner: a block on a floor, the bisector plane and 
   CHECK(bis.worst < 0.02);
   CHECK(halos == rad.n);
   CHECK(halo_pairs > 50);
+}
+
+TEST_CASE("threads: sampling and core give the same bytes in task arenas of 1 and 2 threads") {
+  // the cylinder (curvature, a seam, caps) and the block on a floor (halos, a trimmed face)
+  AnalyticModel cyl = mftest::cylinder(1.0, 3.0);
+  AnalyticModel corner;
+  corner.box({-2, -2, 0}, {2, 2, 2}, true, false, -1,
+             [](int k, double u, double v) { return k != 4 || !(std::abs(u) < 0.5 && std::abs(v) < 0.5); });
+  corner.box({-0.5, -0.5, 0}, {0.5, 0.5, 1}, false, true, 4);
+  auto dir = meshflow::testing::scratch_dir("medial-threads");
+  for (const AnalyticModel* m : {&cyl, &corner}) {
+    std::string bytes[2];
+    for (int t : {1, 2}) {
+      tbb::task_arena arena(t);
+      MedialObject M = arena.execute([&] { return run(*m); });
+      write(M, dir / "m.mfmedial");
+      bytes[t - 1] = mftest::read_text(dir / "m.mfmedial");
+    }
+    CHECK(bytes[0].size() > 1000);
+    CHECK(bytes[0] == bytes[1]);
+  }
+  std::filesystem::remove_all(dir);
 }
 
 TEST_CASE("artifact: write/read round trip, deterministic bytes, corrupt files refused") {

@@ -89,6 +89,20 @@ TEST_CASE("medial stage on naca_wing: body radius = half thickness at mid-chord,
   CHECK(a.stats_["medial_points"]["body"].get<long>() > 0);
 }
 
+TEST_CASE("medial stage on naca_wing: the same bytes with a budget of 1 and of 2 threads") {
+  TestContext geo("naca_wing", {{"incidence_deg", 0.0}});
+  geo.run();
+  meshflow::Artifact shape = geo.artifact("shape");
+  TestContext a("medial", {}, {shape}), b("medial", {}, {shape});
+  b.threads_ = 2;
+  a.run();
+  b.run();
+  std::string one = mftest::read_text(a.artifact("medial").path), two = mftest::read_text(b.artifact("medial").path);
+  CHECK(one.size() > 1000);
+  CHECK(one == two);
+  CHECK(a.stats_["projections"] == b.stats_["projections"]);
+}
+
 TEST_CASE("medial stage: refuses a shape that is not a closed solid") {
   TestContext bogus("medial", {}, {meshflow::Artifact{.name = "shape", .type = "shape", .path = "/nonexistent/x.mfshape"}});
   CHECK_THROWS_AS(bogus.run(), StageError);
@@ -107,8 +121,8 @@ TEST_CASE("meshflow run: geometry -> heal -> medial, identical bytes with 1 and 
          "  medial: {kind: medial, needs: [heal], with: {passes: 2}}\n"
          "outputs:\n  medial: {from: medial}\n";
   }
-  auto run = [&](int threads, const std::string& tag) {
-    std::string cmd = std::string(MESHFLOW_EXE) + " run " + (dir / "wf.yaml").string() + " --threads " + std::to_string(threads) +
+  auto run = [&](int threads, const std::string& tag) {  // -j 1: the stage gets all of --threads (threads / jobs)
+    std::string cmd = std::string(MESHFLOW_EXE) + " run " + (dir / "wf.yaml").string() + " -j 1 --threads " + std::to_string(threads) +
                       " --cache " + (dir / ("cache" + tag)).string() + " --out " + (dir / ("out" + tag)).string() + " > " +
                       (dir / ("log" + tag)).string() + " 2>&1";
     return std::system(cmd.c_str());
