@@ -108,26 +108,24 @@ class Sampler {
   }
 
   std::vector<Sample> edges(const std::vector<int>& ids) const {
-    std::vector<std::vector<Sample>> per(ids.size());
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, ids.size(), 1), [&](const tbb::blocked_range<std::size_t>& r) {
-      for (std::size_t i = r.begin(); i != r.end(); ++i) edge(ids[i], per[i]);
-    });
-    std::vector<Sample> out;
-    for (auto& p : per) append(out, p);
-    return out;
+    return per_id(ids, 1, [this](int e, std::vector<Sample>& o) { edge(e, o); });
   }
-
   std::vector<Sample> vertices(const std::vector<int>& ids) const {
-    std::vector<std::vector<Sample>> per(ids.size());
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, ids.size(), 16), [&](const tbb::blocked_range<std::size_t>& r) {
-      for (std::size_t i = r.begin(); i != r.end(); ++i) vertex(ids[i], per[i]);
-    });
-    std::vector<Sample> out;
-    for (auto& p : per) append(out, p);
-    return out;
+    return per_id(ids, 16, [this](int v, std::vector<Sample>& o) { vertex(v, o); });
   }
 
  private:
+  // sample(id, out) for every id in parallel, each into its own vector, joined in the order of ids
+  template <class SampleOne>
+  static std::vector<Sample> per_id(const std::vector<int>& ids, std::size_t grain, SampleOne sample) {
+    std::vector<std::vector<Sample>> per(ids.size());
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, ids.size(), grain), [&](const tbb::blocked_range<std::size_t>& r) {
+      for (std::size_t i = r.begin(); i != r.end(); ++i) sample(ids[i], per[i]);
+    });
+    std::vector<Sample> out;
+    for (auto& p : per) append(out, p);
+    return out;
+  }
   // A cell still to visit (open) or the samples that took its place.
   struct Item {
     Cell c;

@@ -260,32 +260,17 @@ outputs:
 }
 
 TEST_CASE("the thread budget is shared by the stages that run together: a chain gets all of it at every step") {
-  Fixture chain(R"(meshflow: 1
-name: chain
-stages:
-  p1: {kind: t_par, with: {n: 1000}}
-  p2: {kind: t_par, needs: [p1], with: {n: 2000}}
-outputs:
-  o: {from: p2}
-)");
-  auto r = chain.run({"--jobs", "2", "--threads", "2"});
-  REQUIRE(r.code == 0);
-  json c = json::parse(read_text(chain.out / "report.json"));
-  CHECK(c["stages"][0]["stats"]["threads_used"] == 2);  // alone: every thread, not 2 / jobs
-  CHECK(c["stages"][1]["stats"]["threads_used"] == 2);
-  Fixture side(R"(meshflow: 1
-name: side
-stages:
-  p1: {kind: t_par, with: {n: 1000}}
-  p2: {kind: t_par, with: {n: 2000}}
-outputs:
-  o: {from: p2}
-)");
-  auto s = side.run({"--jobs", "2", "--threads", "2"});
-  REQUIRE(s.code == 0);
-  json b = json::parse(read_text(side.out / "report.json"));
-  CHECK(b["stages"][0]["stats"]["threads_used"] == 1);  // two ready at once: one thread each
-  CHECK(b["stages"][1]["stats"]["threads_used"] == 1);
+  // the threads each t_par stage used, run with -j 2 --threads 2
+  auto threads_used = [](const std::string& p2_needs) {
+    Fixture f("meshflow: 1\nname: budget\nstages:\n  p1: {kind: t_par, with: {n: 1000}}\n  p2: {kind: t_par, " + p2_needs +
+              "with: {n: 2000}}\noutputs:\n  o: {from: p2}\n");
+    auto r = f.run({"--jobs", "2", "--threads", "2"});
+    REQUIRE(r.code == 0);
+    json rep = json::parse(read_text(f.out / "report.json"));
+    return std::make_pair(rep["stages"][0]["stats"]["threads_used"].get<int>(), rep["stages"][1]["stats"]["threads_used"].get<int>());
+  };
+  CHECK(threads_used("needs: [p1], ") == std::make_pair(2, 2));  // a chain: each alone, every thread (not 2 / jobs)
+  CHECK(threads_used("") == std::make_pair(1, 1));               // two ready at once: one thread each
 }
 
 TEST_CASE("golden: check passes, reports differing fields, refuses --update under CI") {
