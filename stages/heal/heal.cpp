@@ -258,11 +258,6 @@ TopoDS_Solid solid_of(const TopoDS_Shell& sh) {
   fs.Perform();
   return TopoDS::Solid(fs.Solid());  // oriented so that its volume is positive
 }
-double volume(const TopoDS_Shape& s) {
-  GProp_GProps g;
-  BRepGProp::VolumeProperties(s, g);
-  return g.Mass();
-}
 
 // Self-interference of a closed solid: pairs of sub-shapes that interfere although they are
 // not adjacent, and faces whose surface crosses itself inside the face (BOPAlgo_CheckerSI, as

@@ -22,7 +22,6 @@ namespace meshflow::medial {
 namespace {
 
 Vec3 v3(const cad::Vec3& v) { return {v.x, v.y, v.z}; }
-cad::Vec3 cv(const Vec3& v) { return {v[0], v[1], v[2]}; }
 
 Vec3 unit(Vec3 a) {
   double l = std::sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
