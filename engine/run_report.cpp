@@ -165,7 +165,8 @@ std::string stage_section_html(const json& report, const json& st, const Artifac
     if (locate)
       for (auto& b : st.value("outputs", json::array()))
         if (str(b, "name") != in.artifact)
-          if (fs::path p = locate(str(b, "digest")); !p.empty()) in.companions.push_back({str(b, "name"), str(b, "type"), p});
+          if (fs::path p = locate(str(b, "digest")); !p.empty())
+            in.companions.push_back({str(b, "name"), str(b, "type"), str(b, "digest"), in.stage, p});
     try {
       body += (*rep)(in);
     } catch (const std::exception& e) {

@@ -15,6 +15,8 @@
 // skip report.html, as they skip report.json.)
 #pragma once
 
+#include "engine/stage.hpp"
+
 #include <nlohmann/json_fwd.hpp>
 
 #include <filesystem>
@@ -38,11 +40,7 @@ struct ArtifactReportInput {
   int threads = 1;
   // The stage's other artifacts that are at hand (bytes verified), e.g. the per-element quality
   // a mesh stage stores beside its mesh: what the report may read instead of computing again.
-  struct Companion {
-    std::string name, type;
-    std::filesystem::path path;
-  };
-  std::vector<Companion> companions;
+  std::vector<Artifact> companions;
 };
 
 // Returns an HTML fragment: no <script>, no external references (inline SVG, data: URIs).

@@ -31,8 +31,14 @@
 #include "stages/model/quality.hpp"
 
 #include <filesystem>
+#include <optional>
 #include <stdexcept>
+#include <vector>
 #include <string>
+
+namespace meshflow {
+struct Artifact;  // engine/stage.hpp
+}
 
 namespace meshflow::io {
 
@@ -64,6 +70,11 @@ void write_quality(const model::Mesh& m, const model::MeshQuality& q, const std:
 // Aligned with m's blocks (as mesh_quality(m) is). Throws MeshIOError when the file is not a
 // quality file or its blocks (type, entity, count) are not m's.
 model::MeshQuality read_quality(const std::filesystem::path& path, const model::Mesh& m);
+// The quality a stage stored beside mesh m: the first "mesh_quality" among `artifacts` (of
+// `stage`, when one is named), read with read_quality. None when there is none, or when it is not
+// m's (`why`, when given, then says why): the caller computes it.
+std::optional<model::MeshQuality> stored_quality(const std::vector<Artifact>& artifacts, const model::Mesh& m,
+                                                 const std::string& stage = {}, std::string* why = nullptr);
 // Reads both forms (plain and compressed sections, also mixed).
 model::Mesh read_nektar(const std::filesystem::path& path);
 // Compressed (Nektar++'s B64Z-LittleEndian VERTEX, EDGE, FACE, ELEMENT and CURVED sections)

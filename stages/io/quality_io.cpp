@@ -14,6 +14,8 @@
 // Every bit of an ElementQuality is kept: what a format writes from it is what it would have
 // computed (mesh_quality is deterministic for any thread count).
 #include "stages/io/mesh_io.hpp"
+
+#include "engine/stage.hpp"
 #include "stages/io/reader.hpp"
 
 #include <fstream>
@@ -110,6 +112,20 @@ MeshQuality read_quality(const std::filesystem::path& path, const Mesh& m) {
   }
   if (!in.eof()) in.fail(std::to_string(d.size() - in.pos()) + " bytes after the mesh quality's end", true);
   return q;
+}
+
+std::optional<MeshQuality> stored_quality(const std::vector<Artifact>& artifacts, const Mesh& m, const std::string& stage,
+                                          std::string* why) {
+  for (const Artifact& a : artifacts)
+    if (a.type == "mesh_quality" && (stage.empty() || a.stage == stage)) {
+      try {
+        return read_quality(a.path, m);
+      } catch (const MeshIOError& e) {
+        if (why) *why = e.what();
+        return std::nullopt;
+      }
+    }
+  return std::nullopt;
 }
 
 }  // namespace meshflow::io

@@ -166,15 +166,7 @@ struct LoadedMesh {
 std::shared_ptr<const void> load_mesh(const std::filesystem::path& in, const std::vector<Artifact>& companions) {
   auto l = std::make_shared<LoadedMesh>();
   l->mesh = read_msh(in);
-  for (auto& c : companions)
-    if (c.type == "mesh_quality") {
-      try {
-        l->quality = read_quality(c.path, l->mesh);
-      } catch (const MeshIOError&) {
-        l->quality.reset();
-      }
-      break;
-    }
+  l->quality = stored_quality(companions, l->mesh);
   return l;
 }
 const LoadedMesh& loaded(const void* p) { return *static_cast<const LoadedMesh*>(p); }

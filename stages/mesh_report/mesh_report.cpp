@@ -282,15 +282,8 @@ std::string pictures_html(const ArtifactReportInput& in, const std::vector<Liste
   model::Mesh mesh = io::read_mesh(in.path);
   Scene scene(mesh, in.threads);
   // the quality the stage stored beside the mesh (the contract's), not computed a second time
-  for (auto& c : in.companions)
-    if (c.type == "mesh_quality") {
-      try {
-        scene.use_quality(io::read_quality(c.path, mesh));
-      } catch (const std::exception&) {
-        // not this mesh's (its blocks differ) or unreadable: computed as needed
-      }
-      break;
-    }
+  // (none, or not this mesh's: computed as needed)
+  if (auto q = io::stored_quality(in.companions, mesh)) scene.use_quality(*q);
   if (scene.surface().empty()) return "<p class=\"note\">No surface to draw (the mesh has no 2D or 3D elements).</p>\n";
   std::string s;
   if (!listed.empty()) s += "<h4>Where the listed elements are</h4>\n" + marked_figures(scene, listed);

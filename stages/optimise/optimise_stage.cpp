@@ -29,13 +29,10 @@ std::string duration(double s) {
 // The quality the input mesh's stage stored beside it (its "mesh_quality"), or none when it
 // stored none or it is not this mesh's.
 model::MeshQuality input_quality(StageContext& ctx, const model::Mesh& m) {
-  for (const Artifact* a : ctx.inputs_of("mesh_quality"))
-    if (a->stage == ctx.input("mesh").stage) try {
-        return io::read_quality(a->path, m);
-      } catch (const io::MeshIOError& e) {
-        ctx.log(std::string("optimise: the input's stored quality is not this mesh's (") + e.what() + "); computing it");
-      }
-  return {};
+  std::string why;
+  auto q = io::stored_quality(ctx.inputs(), m, ctx.input("mesh").stage, &why);
+  if (!why.empty()) ctx.log("optimise: the input's stored quality is not this mesh's (" + why + "); computing it");
+  return q ? std::move(*q) : model::MeshQuality();
 }
 
 void run(StageContext& ctx) {

@@ -38,17 +38,11 @@ nlohmann::json to_json(const Stats& s) {
 // it instead of computing it again (the far-field tetrahedra: most of a domain's elements).
 // Other blocks empty.
 model::MeshQuality passed_through_quality(StageContext& ctx, const model::Mesh& in, const Result& r) {
-  model::MeshQuality known;
-  const Artifact* stored = nullptr;
-  for (const Artifact* a : ctx.inputs_of("mesh_quality"))
-    if (a->stage == ctx.input("mesh").stage) stored = a;
-  if (!stored) return known;
-  try {
-    known = io::read_quality(stored->path, in);
-  } catch (const io::MeshIOError& e) {
-    ctx.log(std::string("split: the input's stored quality is not this mesh's (") + e.what() + "); computing it");
-    return {};
-  }
+  std::string why;
+  auto stored = io::stored_quality(ctx.inputs(), in, ctx.input("mesh").stage, &why);
+  if (!why.empty()) ctx.log("split: the input's stored quality is not this mesh's (" + why + "); computing it");
+  if (!stored) return {};
+  model::MeshQuality known = std::move(*stored);
   for (std::size_t b = 0; b < known.size(); ++b)
     if (b >= r.passed_through.size() || !r.passed_through[b]) model::MeshQuality::value_type().swap(known[b]);
   return known;
