@@ -31,7 +31,8 @@
 //
 // Thread safety: all const queries may run concurrently EXCEPT the project_* functions and
 // face_contains_uv, which fill lazy per-face/per-edge caches. For parallel projection give each thread its own
-// copy: `Shape mine = shape.clone();` (cheap: geometry is shared, caches are not).
+// copy: `Shape mine = shape.clone();` (cheap: geometry is shared, caches are not), or one per
+// thread of a parallel loop: cad::ShapeClones (shape_clones.hpp).
 //
 // Errors: load() throws meshflow::StageError (file, what is wrong, what to do); an id out of
 // range throws std::out_of_range.

@@ -4,18 +4,17 @@
 // OpenCASCADE header here: the CAD is reached through stages/cad/cad.hpp only.
 #include "engine/stage.hpp"
 #include "stages/cad/cad.hpp"
+#include "stages/cad/shape_clones.hpp"
 #include "stages/medial/medial.hpp"
 
 #include <CGAL/version_macros.h>  // version string only (no CGAL code)
 #include <nlohmann/json.hpp>
-#include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <memory>
 #include <set>
 
 namespace meshflow::medial {
@@ -28,17 +27,6 @@ Vec3 unit(Vec3 a) {
   if (!(l > 1e-12)) return {0, 0, 0};
   return {a[0] / l, a[1] / l, a[2] / l};
 }
-
-// One cad::Shape clone per thread (lazily, on the thread's first use): face_contains_uv and the
-// project_* queries fill per-shape caches (cad.hpp), so concurrent callers must not share one.
-class ShapeClones {
- public:
-  explicit ShapeClones(const cad::Shape& s) : clones_([&s] { return std::make_shared<cad::Shape>(s.clone()); }) {}
-  const cad::Shape& local() const { return *clones_.local(); }
-
- private:
-  mutable tbb::enumerable_thread_specific<std::shared_ptr<cad::Shape>> clones_;
-};
 
 // The CAD shape seen as a BoundaryModel. Immutable after construction; its const queries may run
 // concurrently (the sampling's parallel loops): the classifier's caches live in per-thread clones.
@@ -130,7 +118,7 @@ class CadModel : public BoundaryModel {
 
  private:
   const cad::Shape& s_;
-  ShapeClones clones_;
+  cad::ShapeClones clones_;
   std::vector<char> refined_, planar_;
   struct FacePoly {
     bool ok = false;
@@ -353,7 +341,7 @@ long refine_radii(const cad::Shape& shape, MedialObject& M) {
   }
   const std::size_t np = M.points.size();
   std::vector<int> counts(np, 0);
-  ShapeClones clones(shape);
+  cad::ShapeClones clones(shape);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, np, 64), [&](const tbb::blocked_range<std::size_t>& rg) {
     const cad::Shape& mine = clones.local();
     for (std::size_t i = rg.begin(); i != rg.end(); ++i) counts[i] = refine_point(mine, ft, M.samples, M.points[i]);

@@ -4,6 +4,7 @@
 // checks. Method and artifact: stages/shell/shell.hpp. No CGAL, no OCCT header here.
 #include "engine/stage.hpp"
 #include "stages/cad/cad.hpp"
+#include "stages/cad/shape_clones.hpp"
 #include "stages/cad/vec3.hpp"
 #include "stages/medial/medial.hpp"
 #include "stages/shell/shell.hpp"
@@ -11,7 +12,6 @@
 #include <CGAL/version_macros.h>  // version string only (no CGAL code)
 #include <nlohmann/json.hpp>
 #include <tbb/blocked_range.h>
-#include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 
@@ -60,7 +60,7 @@ void for_each_index(const cad::Shape& shape, int threads, std::size_t n, Body&& 
     for (std::size_t i = 0; i < n; ++i) body(mine, i);
     return;
   }
-  tbb::enumerable_thread_specific<cad::Shape> clones([&] { return shape.clone(); });
+  cad::ShapeClones clones(shape);
   tbb::task_arena arena(threads);
   arena.execute([&] {
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 64), [&](const tbb::blocked_range<std::size_t>& r) {
