@@ -669,12 +669,13 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
   line("meshflow: " + wf.name + " (" + wf.file.string() + "), " + std::to_string(wf.stages.size()) + " stages, cache " +
        cache.root().string());
 
-  // Whether every stage stage i needs is done (ready to run or to be found in the cache).
+  auto index_of = [&](const std::string& name) {
+    return size_t(std::find_if(wf.stages.begin(), wf.stages.end(), [&](auto& s) { return s.name == name; }) - wf.stages.begin());
+  };
+  // Whether every stage that stage i needs is done (i is ready to run or to be found in the cache).
   auto needs_done = [&](size_t i) {
-    for (auto& n : wf.stages[i].needs) {
-      size_t ni = size_t(std::find_if(wf.stages.begin(), wf.stages.end(), [&](auto& s) { return s.name == n; }) - wf.stages.begin());
-      if (state[ni] != Done) return false;
-    }
+    for (auto& n : wf.stages[i].needs)
+      if (state[index_of(n)] != Done) return false;
     return true;
   };
   while (finished < wf.stages.size()) {
@@ -688,16 +689,14 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
     for (size_t i = 0; i < wf.stages.size(); ++i) {
       if (state[i] != Pending && state[i] != Waiting) continue;
       const StageDecl& d = wf.stages[i];
-      const bool counted = needs_done(i);
-      if (counted && ready_left > 0) --ready_left;  // ready_left: the ready stages after this one
       bool ready = true, blocked = false;
       for (auto& n : d.needs) {
         auto& nr = results[n];
-        size_t ni = size_t(std::find_if(wf.stages.begin(), wf.stages.end(), [&](auto& s) { return s.name == n; }) - wf.stages.begin());
-        if (state[ni] != Done) ready = false;
+        if (state[index_of(n)] != Done) ready = false;
         else if (nr.status == "failed" || nr.status == "skipped") blocked = true;
         else if (nr.status == "invalid" && has_blocking(problems_of(nr.stats)) && !opt.allow_invalid) blocked = true;
       }
+      if (ready && ready_left > 0) --ready_left;  // ready_left: the ready stages after this one
       if (blocked) {
         results[d.name].error = "not run: a stage it needs failed or broke its contract";
         finish(i, "skipped");

@@ -1,8 +1,7 @@
 #include "stages/contract/contract.hpp"
 
-#include "engine/stage.hpp"
 #include "engine/artifact_type.hpp"
-#include <fstream>
+#include "engine/stage.hpp"
 #include "stages/cad/cad.hpp"
 #include "stages/model/basis.hpp"
 #include "stages/model/quality.hpp"
@@ -15,6 +14,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <fstream>
 #include <map>
 #include <numeric>
 #include <sstream>
