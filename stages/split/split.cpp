@@ -15,6 +15,7 @@
 #include <cmath>
 #include <cstdint>
 #include <map>
+#include <memory>
 #include <sstream>
 #include <unordered_map>
 #include <unordered_set>
@@ -459,22 +460,40 @@ const double kGaussX[8] = {-0.9602898564975363, -0.7966664774136267, -0.52553240
 const double kGaussW[8] = {0.1012285362903763, 0.2223810344533745, 0.3137066458778873, 0.3626837833783620,
                            0.3626837833783620, 0.3137066458778873, 0.2223810344533745, 0.1012285362903763};
 
-// Length of the mapped wall-normal line of direction d through the wall face's centroid,
-// from the wall (t = 0) to t = t1.
-double normal_length(Shape shape, int P, const double* X, int d, int dirsplit, double t1) {
-  const auto& b = model::LagrangeBasis::get(shape, P);
-  double len = 0;
-  for (int g = 0; g < 8; ++g) {
-    double t = 0.5 * t1 * (kGaussX[g] + 1);
-    Vec3 xi = shape == Shape::Prism ? Vec3{1.0 / 3, 1.0 / 3, 0} : Vec3{0, 0, 0};
-    xi[d] = dirsplit < 0 ? -1 + 2 * t : 1 - 2 * t;
-    double J[9];
-    model::jacobian(b, X, xi, J);
-    double s = 2 * std::sqrt(J[d] * J[d] + J[3 + d] * J[3 + d] + J[6 + d] * J[6 + d]);
-    len += 0.5 * t1 * kGaussW[g] * s;
+// The wall-normal line of direction d through the wall face's centroid, from the wall (t = 0)
+// to t = t1: its 8 Gauss points' basis gradients, the same for every macro element of a
+// pattern (computed once per pattern and direction: per element they were 2 s of Rotor 67's
+// split), and its mapped length.
+struct NormalLine {
+  double t1 = 1;
+  int d = 0, n = 0;
+  std::vector<double> dN;  // 8 x 3n
+  NormalLine(Shape shape, int P, int d_, int dirsplit, double t1_) : t1(t1_), d(d_) {
+    const auto& b = model::LagrangeBasis::get(shape, P);
+    n = b.size();
+    dN.resize(8 * 3 * std::size_t(n));
+    for (int g = 0; g < 8; ++g) {
+      const double t = 0.5 * t1 * (kGaussX[g] + 1);
+      Vec3 xi = shape == Shape::Prism ? Vec3{1.0 / 3, 1.0 / 3, 0} : Vec3{0, 0, 0};
+      xi[d] = dirsplit < 0 ? -1 + 2 * t : 1 - 2 * t;
+      b.grad(xi, &dN[std::size_t(g) * 3 * n]);
+    }
   }
-  return len;
-}
+  // the length for node coordinates X (3n); J as model::jacobian sums it
+  double length(const double* X) const {
+    double len = 0;
+    for (int g = 0; g < 8; ++g) {
+      const double* dn = &dN[std::size_t(g) * 3 * n];
+      double J[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
+      for (int i = 0; i < n; ++i)
+        for (int r = 0; r < 3; ++r)
+          for (int c = 0; c < 3; ++c) J[3 * r + c] += X[3 * i + r] * dn[3 * i + c];
+      const double s = 2 * std::sqrt(J[d] * J[d] + J[3 + d] * J[3 + d] + J[6 + d] * J[6 + d]);
+      len += 0.5 * t1 * kGaussW[g] * s;
+    }
+    return len;
+  }
+};
 
 }  // namespace
 
@@ -641,14 +660,24 @@ Result split_mesh(const Mesh& in, const Options& opt, int threads) {
   auto dirs_of = [&](const Macro& mc) { return pattern_keys[mc.pattern]; };
 
   // thickness of every stack (per split direction), then the ratio
+  // the normal lines of each pattern's split directions, to t1 (nullptr: direction not split)
+  auto normal_lines = [&](double t1) {
+    std::vector<std::array<std::unique_ptr<NormalLine>, 3>> lines(pattern_keys.size());
+    for (std::size_t p = 0; p < pattern_keys.size(); ++p)
+      for (int d = 0; d < 3; ++d)
+        if (pattern_keys[p][1 + d]) lines[p][d] = std::make_unique<NormalLine>(Shape(pattern_keys[p][0]), P, d, pattern_keys[p][1 + d], t1);
+    return lines;
+  };
   std::vector<std::array<double, 3>> thick(macros.size(), {0, 0, 0});
-  par(macros.size(), [&](std::size_t i) {
-    thread_local std::vector<double> X;
-    gather(macros[i], X);
-    auto k = dirs_of(macros[i]);
-    for (int d = 0; d < 3; ++d)
-      if (k[1 + d]) thick[i][d] = normal_length(Shape(k[0]), P, X.data(), d, k[1 + d], 1.0);
-  });
+  {
+    const auto lines = normal_lines(1.0);
+    par(macros.size(), [&](std::size_t i) {
+      thread_local std::vector<double> X;
+      gather(macros[i], X);
+      for (int d = 0; d < 3; ++d)
+        if (const auto& l = lines[macros[i].pattern][d]) thick[i][d] = l->length(X.data());
+    });
+  }
   double tmin = INFINITY, tmax = 0;
   for (std::size_t i = 0; i < macros.size(); ++i)
     for (int d = 0; d < 3; ++d)
@@ -664,13 +693,15 @@ Result split_mesh(const Mesh& in, const Options& opt, int threads) {
   st.ratio = ratio;
   const std::vector<double> cuts = layer_cuts(opt.layers, ratio);
   std::vector<double> firsth(macros.size() * 3, NAN);
-  par(macros.size(), [&](std::size_t i) {
-    thread_local std::vector<double> X;
-    gather(macros[i], X);
-    auto k = dirs_of(macros[i]);
-    for (int d = 0; d < 3; ++d)
-      if (k[1 + d]) firsth[3 * i + d] = normal_length(Shape(k[0]), P, X.data(), d, k[1 + d], cuts[1]);
-  });
+  {
+    const auto lines = normal_lines(cuts[1]);
+    par(macros.size(), [&](std::size_t i) {
+      thread_local std::vector<double> X;
+      gather(macros[i], X);
+      for (int d = 0; d < 3; ++d)
+        if (const auto& l = lines[macros[i].pattern][d]) firsth[3 * i + d] = l->length(X.data());
+    });
+  }
   st.first_height_min = INFINITY;
   for (double h : firsth)
     if (!std::isnan(h)) st.first_height_min = std::min(st.first_height_min, h), st.first_height_max = std::max(st.first_height_max, h);
