@@ -213,7 +213,13 @@ TensorEval make_tensor_eval(Shape s, int P, int d1, int d2, const std::vector<Ve
 // relative to the element's extent along c (Rc[3c+r] = largest |difference| of coordinate r), not
 // to its largest size. A 1000:1 boundary-layer element keeps a thin column accurate to ~1e-14 of
 // its own length. X: 3n node coordinates (Gmsh order).
-void tensor_jacobians(const TensorEval& te, const double* X, double* Jp, double* Rc) {
+// Compiled twice (target_clones), for AVX2 and for the baseline x86-64, the loader picking the
+// one the CPU runs: the innermost loops (over a line's sample points) then take 4 doubles at a
+// time instead of 2. Neither clone may contract a multiply and an add (AVX2 is not FMA) and each
+// sum is still formed in the same order, so both give the same bits (Rotor 67's split and curve
+// artifacts byte-identical); the stages whose contract computes the quality of every element got
+// faster by as much (Rotor 67: split 28.1 -> 24.9 s, curve 24.1 -> 22.2 s).
+__attribute__((target_clones("avx2", "default"))) void tensor_jacobians(const TensorEval& te, const double* X, double* Jp, double* Rc) {
   const int p1 = te.p1, np = te.npts();
   std::fill(Jp, Jp + 9 * np, 0.0);
   std::fill(Rc, Rc + 9, 0.0);
