@@ -49,6 +49,7 @@ nlohmann::json UntangleReport::to_json() const {
           {"skipped_in_failed_patch", skipped},
           {"stuck_attempts", stuck},
           {"early_exits", early_exits},
+          {"below_floor_retries", below_floor},
           {"nodes_moved", nodes_moved},
           {"surface_nodes_moved", surface_nodes_moved},
           {"repaired_sliding_on_cad", repaired_sliding},
@@ -704,6 +705,7 @@ struct ElementRun {
   Why why = none;  // tried, not repaired
   double work = 0;
   std::size_t attempts = 0, early_exits = 0, stuck = 0, nodes_moved = 0, surface_nodes_moved = 0;
+  std::size_t below_floor = 0;  // attempts valid but below the floors: the next attempt tried ("floor")
   double max_move = 0;
   std::vector<NodeBefore> moved;                       // the kept patch's free nodes, before
   std::vector<std::pair<ElemRef, char>> valid_before;  // validity flags it changed, before
@@ -1196,6 +1198,17 @@ bool try_lift(State& S, const ElemRef& bad, int ring, Patch& P, Budget& B, Eleme
   return false;
 }
 
+// Whether the applied patch passes the floors as well ("floor" in untangle.hpp): every element
+// that must be valid is, at its sj_floor or above (set_floors; the early exit's test).
+bool meets_floors(const State& S, const Patch& P) {
+  for (std::size_t i = 0; i < P.elems.size(); ++i)
+    if (P.must_valid[i]) {
+      const auto q = S.quality_of(P.elems[i]);
+      if (!(q.valid && q.scaled_jacobian >= P.sj_floor[i])) return false;
+    }
+  return true;
+}
+
 // Tries to repair one invalid element ("patch" .. "accept" in untangle.hpp): rings 1..max_rings,
 // each off-CAD then sliding, each in up to three attempts; an element with a wall face folded on
 // the CAD slides first, at every ring, and tries the off-CAD nodes alone only after that. Reads
@@ -1268,13 +1281,14 @@ ElementRun repair_element(State& S, const ElemRef& bad) {
       // the target on the coarse samples first, then a higher one on the dense samples: samples
       // just above the target can leave det J negative between them, which the Bezier check
       // finds; then (tets, prisms) half the target on det J's Bernstein coefficients, which see the dips
+      Eigen::VectorXd below;  // the first accepted result below the floors ("floor"), kept if no attempt passes them
+      const bool third = std::any_of(P.elems.begin(), P.elems.end(), [&](const ElemRef& r) {
+        return has_bezier_lattice(S.m.blocks[r.block].shape, S.m.blocks[r.block].order);
+      });
       for (int attempt = 0; attempt < 3 && !done; ++attempt) {
         P.target = attempt == 0 ? opt.target : attempt == 1 ? std::max(opt.target, std::min(1.0, 2.5 * opt.target)) : 0.5 * opt.target;
         P.lattice = attempt;
-        if (attempt == 2 && std::none_of(P.elems.begin(), P.elems.end(), [&](const ElemRef& r) {
-              return has_bezier_lattice(S.m.blocks[r.block].shape, S.m.blocks[r.block].order);
-            }))
-          break;  // no tet or prism: the third attempt would repeat the second
+        if (attempt == 2 && !third) break;  // no tet or prism: the third attempt would repeat the second
         ++run.attempts;
         any_attempt = true;
         const auto ta = std::chrono::steady_clock::now();
@@ -1304,10 +1318,29 @@ ElementRun repair_element(State& S, const ElemRef& bad) {
           if (stuck_now) break;
           continue;
         }
+        if (attempt < (third ? 2 : 1) && !meets_floors(S, P)) {  // valid, but a later attempt may do better
+          ++run.below_floor;
+          if (!below.size()) below = r.y;
+          restore(S, P);
+          continue;
+        }
         keep(S, P, now, run);
         run.repaired = done = true;
         run.ring = ring;
         run.sliding = mode == 1;
+      }
+      if (!done && below.size()) {  // no attempt passed the floors: the first valid result
+        apply(S, P, below);
+        std::vector<std::pair<ElemRef, char>> now;
+        if (accepted(S, P, bad, now)) {
+          keep(S, P, now, run);
+          run.repaired = done = true;
+          run.ring = ring;
+          run.sliding = mode == 1;
+          out = -1;  // a budget that ran out in a later attempt does not undo it
+        } else {
+          restore(S, P);
+        }
       }
     }
   }
@@ -1405,6 +1438,7 @@ struct Ledger {
     rep.lift_starts += run.lift_starts;
     rep.attempts += run.attempts;
     rep.early_exits += run.early_exits;
+    rep.below_floor += run.below_floor;
     rep.stuck += run.stuck;
     rep.max_element_work = std::max(rep.max_element_work, run.work);
     if (run.repaired) {

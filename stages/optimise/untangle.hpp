@@ -65,6 +65,12 @@
 //           element ends below the lowest scaled Jacobian of the patch before (never worse: another
 //           invalid element of the patch may not get more inverted); otherwise the patch is
 //           restored exactly and the next ring is tried.
+//   floor   an accepted result whose elements that must be valid are not all at the early exit's
+//           floor (each at a scaled Jacobian of 0.05, or its own before if lower) is kept aside
+//           while the patch's next attempt is tried (counted: below_floor_retries): the first
+//           attempt's penalty acts on samples only and could end an element barely valid between
+//           them (DLR-F6: 0.0008). The first attempt that passes the floor is kept; when none
+//           does, the first accepted result is.
 // An invalid element inside the largest patch of one that could not be repaired is not tried
 // again (its patches are nearly the same; it is counted as skipped and stays invalid).
 //   budget  the untangler gives up instead of grinding. Its work is counted in Jacobian
@@ -150,6 +156,7 @@ struct UntangleReport {
   std::size_t lifts = 0, repaired_by_lift = 0, lift_starts = 0;  // lifts computed; repairs by one alone; attempts started from one
   std::size_t skipped = 0;  // invalid elements inside the largest patch of one that could not be repaired: not tried
   std::size_t early_exits = 0;  // second/third attempts stopped at the first tested point that was acceptable
+  std::size_t below_floor = 0;  // attempts whose valid result was below the floors, so the next attempt was tried
   std::size_t stuck = 0;    // patch attempts whose coarse try stayed >= target^2: the harder tries were skipped
   std::vector<int> repaired_at_ring;                   // [ring-1] = elements repaired with that ring
   std::vector<Unrepaired> unrepaired;                  // the first max_listed elements still invalid

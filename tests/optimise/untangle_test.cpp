@@ -6,6 +6,8 @@
 #include "stages/model/quality.hpp"
 #include "stages/optimise/untangle.hpp"
 
+#include <nlohmann/json.hpp>
+
 #include <cmath>
 #include <map>
 #include <tuple>
@@ -510,4 +512,37 @@ TEST_CASE("untangle lift: tets under a curved face are repaired by the lift alon
       CHECK(with.y[i] == start.y[i]);
       CHECK(with.z[i] == start.z[i]);
     }
+}
+
+TEST_CASE("untangle floor: a repaired element ends at the early exit's floor, or a later attempt was tried for it first") {
+  Mesh m = cube_tets(3, 4);
+  const auto& b = m.blocks[0];
+  // interior edge nodes of several tets pushed by different amounts, so that some repairs end
+  // close to invalid after the first attempt
+  std::vector<std::size_t> pushed;
+  const double f[] = {1.3, 1.6, 2.0, 2.4};
+  for (std::size_t e = 0; e < b.size() && pushed.size() < 4; e += 7)
+    for (int k = 0; k < 6; ++k) {
+      std::uint32_t v = b.element(e)[model::edge_nodes(Shape::Tet, 4)[k][3]];
+      if (m.node_entity_dim[v] == 3) {
+        push_edge_node(m, e, k, f[pushed.size()]);
+        pushed.push_back(e);
+        break;
+      }
+    }
+  REQUIRE(pushed.size() == 4);
+  std::vector<char> was_invalid;
+  const auto before = model::mesh_quality(m, 1);
+  for (auto& q : before[0]) was_invalid.push_back(!q.valid);
+  auto rep = meshflow::optimise::untangle(m, {}, 1);
+  const auto after = model::mesh_quality(m, 1)[0];
+  double lowest = INFINITY;
+  for (std::size_t e = 0; e < after.size(); ++e)
+    if (was_invalid[e]) lowest = std::min(lowest, after[e].scaled_jacobian);
+  MESSAGE("floor: " << rep.invalid_before << " -> " << rep.invalid_after << " invalid, lowest repaired scaled Jacobian " << lowest
+                    << ", below-floor retries " << rep.below_floor << ", attempts " << rep.attempts);
+  CHECK(rep.invalid_before > 0);
+  CHECK(rep.invalid_after == 0);
+  CHECK((lowest >= 0.05 || rep.below_floor > 0));
+  CHECK(rep.to_json().at("below_floor_retries") == rep.below_floor);
 }
