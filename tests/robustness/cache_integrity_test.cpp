@@ -543,14 +543,17 @@ TEST_CASE("SIGKILL while outputs are written: the next run removes the temp file
     return n;
   };
   std::mt19937 rng(22);
-  std::uniform_int_distribution<int> extra_us(0, 5000);
-  int left_debris = 0;
-  for (int i = 0; i < 8; ++i) {
+  std::uniform_int_distribution<int> extra_us(0, 1000);
+  // Kills until three have landed while outputs were being written (each one's recovery checked),
+  // at most 24: this small run writes its outputs in a few ms, so whether a kill finds temp files
+  // is a matter of timing (1 to 7 of 8 were seen)
+  int left_debris = 0, kills = 0;
+  for (int i = 0; i < 24 && left_debris < 3; ++i, ++kills) {
     CAPTURE(i);
     fs::path out = box.dir / ("out" + std::to_string(i));
     std::vector<std::string> args = {exe(), "run", box.workflow.string(), "--cache", cache.string(), "--out", out.string()};
     int pid = mftest::spawn(args, box.dir / "killed.log");
-    // Kill it once it is writing an output file (a temp file appears), 0-5 ms later.
+    // Kill it once it is writing an output file (a temp file appears), 0-1 ms later.
     auto t0 = Clock::now();
     while (debris(out) == 0 && Clock::now() - t0 < std::chrono::seconds(60)) std::this_thread::sleep_for(std::chrono::microseconds(500));
     std::this_thread::sleep_for(std::chrono::microseconds(extra_us(rng)));
@@ -563,6 +566,6 @@ TEST_CASE("SIGKILL while outputs are written: the next run removes the temp file
     CHECK(debris(out) == 0);
     CHECK(tree_differences(ref.out, out) == std::vector<std::string>{});
   }
-  MESSAGE(left_debris, " of 8 kills left temp files in out/");
-  CHECK(left_debris >= 4);  // the kills did land while outputs were being written
+  MESSAGE(left_debris, " of ", kills, " kills left temp files in out/");
+  CHECK(left_debris >= 3);  // the kills did land while outputs were being written
 }
