@@ -532,7 +532,10 @@ static void release(C& c) {
   C().swap(c);
 }
 
-Result split_mesh(const Mesh& in, const Options& opt, int threads) {
+// split_mesh; with `consume` (the same mesh as `in`), its node arrays are released once the new
+// nodes' coordinates are computed and its pass-through blocks' connectivity is moved into the
+// result: the stage then never holds the input's nodes beside the whole output (its peak).
+static Result split_impl(const Mesh& in, Mesh* consume, const Options& opt, int threads) {
   if (opt.layers < 1 || opt.layers > 100) throw StageError("split: layers must be in [1, 100]");
   if (!(opt.ratio >= 1 && opt.ratio <= 10)) throw StageError("split: ratio must be in [1, 10]");
   if (in.dimension() != 3)
@@ -712,6 +715,29 @@ Result split_mesh(const Mesh& in, const Options& opt, int threads) {
     patterns.push_back(make_pattern(Shape(k[0]), P, opt.layers, ds, cuts));
   }
 
+  // the first macro element of each block (SIZE_MAX: none)
+  std::vector<std::size_t> first_macro(in.blocks.size(), SIZE_MAX);
+  for (std::size_t i = macros.size(); i-- > 0;) first_macro[macros[i].block] = i;
+  // The conformity check's expectation, from the input's topology (built and dropped here, before
+  // the output exists): every boundary face of the input becomes its sub-faces, every interior
+  // face stays interior
+  std::size_t expect_boundary = 0, nc_in = 0;
+  if (opt.check_conformity) {
+    const model::Topology tin = model::build_topology(in);
+    nc_in = tin.nonconforming_faces;
+    for (auto& f : tin.faces) {
+      if (f.elements.size() != 1) continue;
+      const ElementRef& r = f.elements[0];
+      std::size_t mi = first_macro[r.block] == SIZE_MAX ? SIZE_MAX : first_macro[r.block] + r.element;
+      if (mi == SIZE_MAX) {
+        ++expect_boundary;
+        continue;
+      }
+      const Pattern& pt = patterns[macros[mi].pattern];
+      expect_boundary += pt.face_split[r.local] ? pt.face_subs[r.local].size() : 1;
+    }
+  }
+
   // numbering (serial, mesh order): reused original nodes, keyed shared points, interiors
   const std::uint32_t n0 = std::uint32_t(in.num_nodes());
   std::vector<std::size_t> foff(macros.size() + 1, 0);
@@ -747,18 +773,21 @@ Result split_mesh(const Mesh& in, const Options& opt, int threads) {
   Mesh& out = res.mesh;
   out.entities = in.entities;
   out.physicals = in.physicals;
-  out.x = in.x, out.y = in.y, out.z = in.z;
-  out.x.resize(ntot), out.y.resize(ntot), out.z.resize(ntot);
   const bool classified = !in.node_entity_dim.empty();
   const bool params = in.has_parametric();
-  if (classified) {
-    out.node_entity_dim = in.node_entity_dim, out.node_entity_tag = in.node_entity_tag;
-    out.node_entity_dim.resize(ntot, 3), out.node_entity_tag.resize(ntot, 0);
-  }
-  if (params) {
-    out.node_u = in.node_u, out.node_v = in.node_v;
-    out.node_u.resize(ntot, NAN), out.node_v.resize(ntot, NAN);
-  }
+  // each node array: the input's (original indices), then room for the new nodes; a consumed
+  // input's array is released as soon as it is copied (the two are never held whole together).
+  // From here the input's nodes are read from the output.
+  auto extend = [&](auto& dst, auto Mesh::*member, auto fill) {
+    const auto& src = in.*member;
+    dst.reserve(ntot);
+    dst.assign(src.begin(), src.end());
+    if (consume) release(consume->*member);
+    dst.resize(ntot, fill);
+  };
+  extend(out.x, &Mesh::x, 0.0), extend(out.y, &Mesh::y, 0.0), extend(out.z, &Mesh::z, 0.0);
+  if (classified) extend(out.node_entity_dim, &Mesh::node_entity_dim, 3), extend(out.node_entity_tag, &Mesh::node_entity_tag, 0);
+  if (params) extend(out.node_u, &Mesh::node_u, double(NAN)), extend(out.node_v, &Mesh::node_v, double(NAN));
   const int C = params ? 5 : 3;
   par(macros.size(), [&](std::size_t i) {
     const Macro& mc = macros[i];
@@ -770,9 +799,9 @@ Result split_mesh(const Mesh& in, const Options& opt, int threads) {
     Xn.assign(std::size_t(n) * C, 0.0);
     for (int k = 0; k < n; ++k) {
       std::uint32_t g = en[k];
-      Xn[k * C] = in.x[g], Xn[k * C + 1] = in.y[g], Xn[k * C + 2] = in.z[g];
+      Xn[k * C] = out.x[g], Xn[k * C + 1] = out.y[g], Xn[k * C + 2] = out.z[g];
       if (params) {
-        double u = in.node_u[g], v = in.node_v[g];
+        double u = out.node_u[g], v = out.node_v[g];
         Xn[k * C + 3] = std::isnan(u) ? 0 : u, Xn[k * C + 4] = std::isnan(v) ? 0 : v;
       }
     }
@@ -844,8 +873,8 @@ Result split_mesh(const Mesh& in, const Options& opt, int threads) {
       if (!params) return false;
       for (int k : nodes) {
         std::uint32_t g = en[k];
-        if (in.node_entity_dim[g] != dim || in.node_entity_tag[g] != tag || std::isnan(in.node_u[g]) ||
-            (dim == 2 && std::isnan(in.node_v[g])))
+        if (out.node_entity_dim[g] != dim || out.node_entity_tag[g] != tag || std::isnan(out.node_u[g]) ||
+            (dim == 2 && std::isnan(out.node_v[g])))
           return false;
       }
       return true;
@@ -867,11 +896,11 @@ Result split_mesh(const Mesh& in, const Options& opt, int threads) {
         bool consistent = en_e.size() > 2;
         for (std::size_t k = 2; k < en_e.size() && consistent; ++k) {
           std::uint32_t g = en[en_e[k]], g2 = en[en_e[2]];
-          consistent = in.node_entity_dim[g] == in.node_entity_dim[g2] && in.node_entity_tag[g] == in.node_entity_tag[g2] &&
-                       in.node_entity_dim[g] <= 2;
+          consistent = out.node_entity_dim[g] == out.node_entity_dim[g2] && out.node_entity_tag[g] == out.node_entity_tag[g2] &&
+                       out.node_entity_dim[g] <= 2;
         }
         if (consistent) {
-          eent_dim[e] = in.node_entity_dim[en[en_e[2]]], eent_tag[e] = in.node_entity_tag[en[en_e[2]]];
+          eent_dim[e] = out.node_entity_dim[en[en_e[2]]], eent_tag[e] = out.node_entity_tag[en[en_e[2]]];
           epar[e] = all_on(en_e, eent_dim[e], eent_tag[e]);
         } else {
           // an edge on a boundary face (of this element or of another one): that face's entity
@@ -902,6 +931,7 @@ Result split_mesh(const Mesh& in, const Options& opt, int threads) {
   if (params)
     for (std::size_t id = n0; id < ntot; ++id)
       if (out.node_entity_dim[id] <= 2 && std::isnan(out.node_u[id])) ++st.nodes_without_params;
+  release(owner);  // only the coordinates needed it
 
   // periodic links: new nodes of split slave faces -> the same keys on the master side
   // A face's own link lists the nodes classified on the face; the vertices of a split face on
@@ -933,13 +963,13 @@ Result split_mesh(const Mesh& in, const Options& opt, int threads) {
         }
         for (int k : fverts[f])
           if (!master.count(en[k]))
-            throw StageError("split: periodic surface " + std::to_string(link.tag) + ": the vertex at " + where(in, en[k]) +
+            throw StageError("split: periodic surface " + std::to_string(link.tag) + ": the vertex at " + where(out, en[k]) +
                              " of a split face has no master node; cannot extend the periodic link to the new nodes");
         for (std::uint32_t q : pt.face_pts[f]) {
           const std::uint32_t m = keyed.find(make_key(pt.pts[q], gv));
           if (m == kNone)
             throw StageError("split: periodic surface " + std::to_string(link.tag) + " (master " + std::to_string(link.master_tag) +
-                             "): the master face of the split face at " + where(in, en[fverts[f][0]]) +
+                             "): the master face of the split face at " + where(out, en[fverts[f][0]]) +
                              " is not split the same way (is it a wall stack with the same wall?)");
           add.emplace_back(fid[foff[i] + q], m);
         }
@@ -970,8 +1000,6 @@ Result split_mesh(const Mesh& in, const Options& opt, int threads) {
       split_edges.emplace(std::make_pair(k[0], k[1]), std::make_pair(k[2], k[3]));
     }
   }
-  std::vector<std::size_t> first_macro(in.blocks.size(), SIZE_MAX);
-  for (std::size_t i = macros.size(); i-- > 0;) first_macro[macros[i].block] = i;
   for (std::size_t bi = 0; bi < in.blocks.size(); ++bi) {
     const ElementBlock& b = in.blocks[bi];
     ElementBlock nb;
@@ -1007,7 +1035,7 @@ Result split_mesh(const Mesh& in, const Options& opt, int threads) {
         bool same = r < nv && en[fv[(r + 1) % nv]] == ev[1];
         bool reversed = r < nv && en[fv[(r + nv - 1) % nv]] == ev[1];
         if (!same && !reversed)
-          throw StageError("split: the boundary face at " + where(in, ev[0]) + " does not match its macro element's face");
+          throw StageError("split: the boundary face at " + where(out, ev[0]) + " does not match its macro element's face");
         const auto& fn = model::face_nodes(pt.shape, P)[f];
         std::vector<std::uint32_t> sub(fn.size()), outn(fn.size());
         for (int s : pt.face_subs[f]) {
@@ -1050,18 +1078,20 @@ Result split_mesh(const Mesh& in, const Options& opt, int threads) {
         ++st.lines_split;
       }
     } else {
-      nb.nodes = b.nodes;
+      if (consume) nb.nodes = std::move(consume->blocks[bi].nodes);  // in's block is not read again
+      else nb.nodes = b.nodes;
     }
     res.passed_through.push_back(first_macro[bi] == SIZE_MAX && dim == 3);
     out.blocks.push_back(std::move(nb));
   }
 
   // The numbering's maps and the per-macro fine-point ids are done with: release them before
-  // the compaction and the conformity check, which then hold the output mesh, the input and one
-  // topology at a time (the stage's peak memory; issue 24 item 4)
+  // the compaction and the conformity check, which then hold the output mesh, the input's
+  // elements (its nodes too, unless consumed) and one topology (the stage's peak memory)
   keyed = SharedPoints();
   release(fid), release(owner), release(walls), release(bfaces), release(bedges);
   release(split_faces), release(split_edges), release(master);
+  if (consume) release(consume->blocks);  // the input is not read again (its topology was counted first)
 
   // drop the nodes no element uses any more (the original high-order nodes inside split
   // edges, faces and volumes); keep the order of the others
@@ -1091,27 +1121,15 @@ Result split_mesh(const Mesh& in, const Options& opt, int threads) {
   out.periodic = std::move(periodic);
   st.nodes_in = n0, st.nodes_out = c, st.dropped_nodes = ntot - c;
   release(newid);
+  // the dropped nodes' room (Rotor 67: 1.2 M nodes, 60 MB) freed before the topology is built;
+  // one array at a time, after newid, as each shrink copies its array
+  for (auto* v : {&out.x, &out.y, &out.z, &out.node_u, &out.node_v}) v->shrink_to_fit();
+  out.node_entity_dim.shrink_to_fit(), out.node_entity_tag.shrink_to_fit();
 
   if (opt.check_conformity) {
     // every boundary face of the input becomes its sub-faces, every interior face stays
     // interior: a split face whose neighbour splits it differently would show up as extra
     // boundary faces (hanging nodes), not as a non-conforming pair
-    std::size_t expect_boundary = 0, nc_in = 0;
-    {  // the input's topology, dropped before the output's is built
-      const model::Topology tin = model::build_topology(in);
-      nc_in = tin.nonconforming_faces;
-      for (auto& f : tin.faces) {
-        if (f.elements.size() != 1) continue;
-        const ElementRef& r = f.elements[0];
-        std::size_t mi = first_macro[r.block] == SIZE_MAX ? SIZE_MAX : first_macro[r.block] + r.element;
-        if (mi == SIZE_MAX) {
-          ++expect_boundary;
-          continue;
-        }
-        const Pattern& pt = patterns[macros[mi].pattern];
-        expect_boundary += pt.face_split[r.local] ? pt.face_subs[r.local].size() : 1;
-      }
-    }
     model::Topology t = model::build_topology(out);
     if (t.boundary_faces != expect_boundary) {
       std::string at;
@@ -1151,5 +1169,8 @@ Result split_mesh(const Mesh& in, const Options& opt, int threads) {
   }
   return res;
 }
+
+Result split_mesh(const Mesh& in, const Options& opt, int threads) { return split_impl(in, nullptr, opt, threads); }
+Result split_mesh(Mesh&& in, const Options& opt, int threads) { return split_impl(in, &in, opt, threads); }
 
 }  // namespace meshflow::split

@@ -87,5 +87,10 @@ double ratio_for_first_fraction(int layers, double fraction);
 // elements, no wall faces, mixed orders, a prism/hex without an identifiable wall face, a
 // split that would break conformity). `threads` <= 0: TBB's default.
 Result split_mesh(const model::Mesh& in, const Options& opt, int threads = 0);
+// The same, consuming the input: its node arrays are released once the new nodes' coordinates
+// are computed and its pass-through blocks' connectivity is moved into the result, so the input's
+// nodes are never held beside the whole output (Rotor 67: the stage's peak). `in` is left with
+// its element blocks but no nodes; only its destruction or assignment is meaningful.
+Result split_mesh(model::Mesh&& in, const Options& opt, int threads = 0);
 
 }  // namespace meshflow::split

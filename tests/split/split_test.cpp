@@ -358,6 +358,27 @@ TEST_CASE("determinism: identical bytes at 1, 2 and 4 threads") {
   std::filesystem::remove_all(d);
 }
 
+TEST_CASE("consuming the input (split_mesh(Mesh&&)): the same bytes as splitting a copy, the input's nodes released") {
+  auto J = junction_mesh(3);
+  auto d = tmpdir("consume");
+  Options o;
+  o.layers = 5;
+  o.ratio = 1.4;
+  auto kept = split_mesh(J.mesh, o, 2);
+  Mesh in = J.mesh;
+  auto consumed = split_mesh(std::move(in), o, 2);
+  CHECK(in.x.empty());
+  CHECK(in.node_u.empty());
+  CHECK(consumed.passed_through == kept.passed_through);
+  CHECK(consumed.stats.nodes_out == kept.stats.nodes_out);
+  meshflow::io::write_mesh(kept.mesh, d / "kept.msh", meshflow::io::MeshFormat::MshBinary);
+  meshflow::io::write_mesh(consumed.mesh, d / "consumed.msh", meshflow::io::MeshFormat::MshBinary);
+  const std::string a = mftest::read_text(d / "kept.msh"), b = mftest::read_text(d / "consumed.msh");
+  REQUIRE(a.size() > 1000);
+  CHECK(a == b);
+  std::filesystem::remove_all(d);
+}
+
 TEST_CASE("refusals: no wall, a prism without a wall face, order mismatch, opposite wall faces, a non-conforming split") {
   auto J = junction_mesh(2, 8, false);
   Options o;
@@ -430,6 +451,14 @@ TEST_CASE("refusals: no wall, a prism without a wall face, order mismatch, oppos
       FAIL("expected a StageError");
     } catch (const StageError& e) {
       CHECK(std::string(e.what()).find("non-conforming") != std::string::npos);
+    }
+    try {  // the same, consuming a copy: the message still says where (from the output's nodes)
+      Mesh c = m;
+      split_mesh(std::move(c), o2, 1);
+      FAIL("expected a StageError");
+    } catch (const StageError& e) {
+      CHECK(std::string(e.what()).find("non-conforming") != std::string::npos);
+      CHECK(std::string(e.what()).find("near (") != std::string::npos);
     }
     o2.ratio = 1;  // uniform: both ends give the same points, but keys still differ -> refused
     CHECK_THROWS_AS(split_mesh(m, o2, 1), StageError);
