@@ -102,19 +102,14 @@ struct ElemRef {
   bool operator==(const ElemRef& o) const { return block == o.block && index == o.index; }
 };
 
-// Basis gradients at the sample points of one (shape, order): dN[(s * n + a) * 3 + c]. For the
-// Bezier lattice (tets, prisms), also the transform of det J's values at the points to its
-// Bernstein coefficients: T (tets), or Ta (triangle) x Tb (line) for prisms, the points ordered
-// s = i * nb + j (triangle point i, line point j).
+// Basis gradients dN_a,c(s) at the sample points of one (shape, order), n nodes, ns samples, in
+// the two orders the patch energy reads them (sample_jacobians, gradient_terms): by node and
+// direction, samples contiguous (Dacs[(3 a + c) ns + s]), and by sample and direction, nodes
+// contiguous (Dsca[(3 s + c) n + a]). For the Bezier lattice (tets, prisms), also the transform of
+// det J's values at the points to its Bernstein coefficients: T (tets), or Ta (triangle) x Tb
+// (line) for prisms, the points ordered s = i * nb + j (triangle point i, line point j).
 struct SampleTable {
   int n = 0, ns = 0;
-  std::vector<double> dN;
-  // The same gradients as one matrix, rows (sample s, reference direction c) = 3 s + c, columns
-  // nodes a (the lift's products).
-  Eigen::MatrixXd D;
-  // And in the two orders the patch energy reads them (sample_jacobians, gradient_terms): by
-  // node and direction, samples contiguous (Dacs[(3 a + c) ns + s]), and by sample and direction,
-  // nodes contiguous (Dsca[(3 s + c) n + a]).
   std::vector<double> Dacs, Dsca;
   Eigen::MatrixXd T, Ta, Tb;
 };
@@ -201,20 +196,16 @@ const SampleTable& samples(Shape s, int order, int lattice) {
   }
   t.n = b.size();
   t.ns = int(pts.size());
-  t.dN.resize(std::size_t(t.ns) * t.n * 3);
-  for (int k = 0; k < t.ns; ++k) b.grad(pts[k], &t.dN[std::size_t(k) * t.n * 3]);
-  t.D.resize(3 * t.ns, t.n);
-  for (int k = 0; k < t.ns; ++k)
-    for (int a = 0; a < t.n; ++a)
-      for (int c = 0; c < 3; ++c) t.D(3 * k + c, a) = t.dN[(std::size_t(k) * t.n + a) * 3 + c];
-  t.Dacs.resize(t.dN.size()), t.Dsca.resize(t.dN.size());
-  for (int k = 0; k < t.ns; ++k)
+  std::vector<double> dN(3 * std::size_t(t.n));  // at one sample: dN[3 a + c]
+  t.Dacs.resize(std::size_t(t.ns) * t.n * 3), t.Dsca.resize(t.Dacs.size());
+  for (int k = 0; k < t.ns; ++k) {
+    b.grad(pts[k], dN.data());
     for (int a = 0; a < t.n; ++a)
       for (int c = 0; c < 3; ++c) {
-        const double d = t.dN[(std::size_t(k) * t.n + a) * 3 + c];
-        t.Dacs[(3 * std::size_t(a) + c) * t.ns + k] = d;
-        t.Dsca[(3 * std::size_t(k) + c) * t.n + a] = d;
+        t.Dacs[(3 * std::size_t(a) + c) * t.ns + k] = dN[3 * std::size_t(a) + c];
+        t.Dsca[(3 * std::size_t(k) + c) * t.n + a] = dN[3 * std::size_t(a) + c];
       }
+  }
   return cache.emplace(key, std::move(t)).first->second;
 }
 
@@ -1282,6 +1273,13 @@ ElementRun repair_element(State& S, const ElemRef& bad) {
       // just above the target can leave det J negative between them, which the Bezier check
       // finds; then (tets, prisms) half the target on det J's Bernstein coefficients, which see the dips
       Eigen::VectorXd below;  // the first accepted result below the floors ("floor"), kept if no attempt passes them
+      // the applied patch is kept (init-captures: clang 14 cannot capture structured bindings)
+      auto repaired = [&, ring = ring, mode = mode](const std::vector<std::pair<ElemRef, char>>& now) {
+        keep(S, P, now, run);
+        run.repaired = done = true;
+        run.ring = ring;
+        run.sliding = mode == 1;
+      };
       const bool third = std::any_of(P.elems.begin(), P.elems.end(), [&](const ElemRef& r) {
         return has_bezier_lattice(S.m.blocks[r.block].shape, S.m.blocks[r.block].order);
       });
@@ -1324,19 +1322,13 @@ ElementRun repair_element(State& S, const ElemRef& bad) {
           restore(S, P);
           continue;
         }
-        keep(S, P, now, run);
-        run.repaired = done = true;
-        run.ring = ring;
-        run.sliding = mode == 1;
+        repaired(now);
       }
       if (!done && below.size()) {  // no attempt passed the floors: the first valid result
         apply(S, P, below);
         std::vector<std::pair<ElemRef, char>> now;
         if (accepted(S, P, bad, now)) {
-          keep(S, P, now, run);
-          run.repaired = done = true;
-          run.ring = ring;
-          run.sliding = mode == 1;
+          repaired(now);
           out = -1;  // a budget that ran out in a later attempt does not undo it
         } else {
           restore(S, P);
