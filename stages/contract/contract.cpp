@@ -3,6 +3,7 @@
 #include "engine/artifact_type.hpp"
 #include "engine/stage.hpp"
 #include "stages/cad/cad.hpp"
+#include "stages/io/mesh_io.hpp"
 #include "stages/model/basis.hpp"
 #include "stages/model/quality.hpp"
 #include "stages/model/topology.hpp"
@@ -601,12 +602,19 @@ model::MeshQuality publish(StageContext& ctx, Result r, const std::string& hint)
 }  // namespace
 
 // The CAD reference of the stage's shape: stored beside it by the stage that wrote it, else computed.
-CadReference reference_of(StageContext& ctx, const cad::Shape& shape) {
+static CadReference reference_of(StageContext& ctx, const cad::Shape& shape) {
   const auto shapes = ctx.inputs_of("shape");
   if (!shapes.empty())
     for (const Artifact* a : ctx.inputs_of("cad_reference"))
       if (a->stage == shapes[0]->stage) return read_cad_reference(a->path);
   return cad_reference(shape, ctx.threads());
+}
+
+std::optional<model::MeshQuality> input_quality(StageContext& ctx, const Mesh& m, const std::string& who) {
+  std::string why;
+  auto stored = io::stored_quality(ctx.inputs(), m, ctx.input("mesh").stage, &why);
+  if (!why.empty()) ctx.log(who + ": the input's stored quality is not this mesh's (" + why + "); computing it");
+  return stored;
 }
 
 model::MeshQuality record(StageContext& ctx, const Mesh& m, Extent extent, const cad::Shape* shape, const std::string& hint,

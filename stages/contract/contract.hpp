@@ -33,6 +33,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -118,5 +119,11 @@ model::MeshQuality record(StageContext& ctx, const model::Mesh& m, Extent extent
 model::MeshQuality record_against(StageContext& ctx, const model::Mesh& m, Extent extent, const CadReference& ref,
                                   const std::string& hint = {}, const model::MeshQuality* known = nullptr,
                                   const std::vector<char>* moved = nullptr);
+
+// What the stage knows of its input's quality: the quality the stage that made its "mesh" input
+// stored beside it (io::stored_quality), at the input's coordinates, for `known` above. None
+// when it stored none, or when it is not m's: logged as "<who>: the input's stored quality is not
+// this mesh's (why); computing it".
+std::optional<model::MeshQuality> input_quality(StageContext& ctx, const model::Mesh& m, const std::string& who);
 
 }  // namespace meshflow::contract

@@ -26,15 +26,6 @@ std::string duration(double s) {
   return b;
 }
 
-// The quality the input mesh's stage stored beside it (its "mesh_quality"), or none when it
-// stored none or it is not this mesh's.
-model::MeshQuality input_quality(StageContext& ctx, const model::Mesh& m) {
-  std::string why;
-  auto q = io::stored_quality(ctx.inputs(), m, ctx.input("mesh").stage, &why);
-  if (!why.empty()) ctx.log("optimise: the input's stored quality is not this mesh's (" + why + "); computing it");
-  return q ? std::move(*q) : model::MeshQuality();
-}
-
 void run(StageContext& ctx) {
   const auto& p = ctx.params();
   Options opt;
@@ -57,7 +48,7 @@ void run(StageContext& ctx) {
   cad::Shape shape = cad::Shape::load(ctx.input("shape").path);
   // the quality the input's stage stored, at the input's coordinates: every pass below computes
   // only the elements whose nodes moved since
-  const model::MeshQuality known = input_quality(ctx, m);
+  const model::MeshQuality known = contract::input_quality(ctx, m, "optimise").value_or(model::MeshQuality());
   const std::vector<double> x0 = known.empty() ? std::vector<double>() : m.x;
   const std::vector<double> y0 = known.empty() ? std::vector<double>() : m.y;
   const std::vector<double> z0 = known.empty() ? std::vector<double>() : m.z;

@@ -35,16 +35,9 @@ nlohmann::json to_json(const Stats& s) {
 }
 
 // The quality of the blocks split passes through unchanged, from the quality the input's stage
-// stored beside the mesh (the same stage's "mesh_quality", when it wrote one): the contract takes
-// it instead of computing it again (the far-field tetrahedra: most of a domain's elements). Read
-// against the input before it is split (split consumes it).
-std::optional<model::MeshQuality> input_quality(StageContext& ctx, const model::Mesh& in) {
-  std::string why;
-  auto stored = io::stored_quality(ctx.inputs(), in, ctx.input("mesh").stage, &why);
-  if (!why.empty()) ctx.log("split: the input's stored quality is not this mesh's (" + why + "); computing it");
-  return stored;
-}
-// Of it, the passed-through blocks' (others empty).
+// stored beside the mesh (contract::input_quality, read against the input before it is split:
+// split consumes it): the contract takes it instead of computing it again (the far-field
+// tetrahedra: most of a domain's elements). Other blocks empty.
 model::MeshQuality passed_through_quality(std::optional<model::MeshQuality> stored, const Result& r) {
   if (!stored) return {};
   model::MeshQuality known = std::move(*stored);
@@ -71,7 +64,7 @@ void run(StageContext& ctx) {
   input_volume.volume = contract::enclosed_volume(in);
   input_volume.source = "the input mesh";
   ctx.progress(0.1, "splitting");
-  auto stored = input_quality(ctx, in);
+  auto stored = contract::input_quality(ctx, in, "split");
   Result r = split_mesh(std::move(in), opt, ctx.threads());  // releases the input's nodes as it goes
   const model::MeshQuality known = passed_through_quality(std::move(stored), r);
   in = model::Mesh();  // not needed any more: the writer and the contract hold the split mesh alone
