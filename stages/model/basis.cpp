@@ -166,8 +166,11 @@ Vec3 map_point(const LagrangeBasis& b, const double* X, const Vec3& xi) {
 void jacobian(const LagrangeBasis& b, const double* X, const Vec3& xi, double J[9]) {
   std::vector<double> dN(3 * static_cast<size_t>(b.size()));
   b.grad(xi, dN.data());
+  jacobian(X, dN.data(), b.size(), J);
+}
+void jacobian(const double* X, const double* dN, int n, double J[9]) {
   for (int i = 0; i < 9; ++i) J[i] = 0;
-  for (int i = 0; i < b.size(); ++i)
+  for (int i = 0; i < n; ++i)
     for (int r = 0; r < 3; ++r)
       for (int c = 0; c < 3; ++c) J[3 * r + c] += X[3 * i + r] * dN[3 * i + c];
 }

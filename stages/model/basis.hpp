@@ -48,6 +48,9 @@ class LagrangeBasis {
 Vec3 map_point(const LagrangeBasis& b, const double* X, const Vec3& xi);
 // J[3*r+c] = d x_r / d xi_c (3x3; for 2D elements column 2 is 0, for lines columns 1-2).
 void jacobian(const LagrangeBasis& b, const double* X, const Vec3& xi, double J[9]);
+// The same from the n basis gradients at xi (dN[3*i+c] = dN_i/dxi_c, as LagrangeBasis::grad
+// writes them), for callers that evaluate one point set for many elements.
+void jacobian(const double* X, const double* dN, int n, double J[9]);
 // Determinant used for validity: 3D: det J; 2D: (J_0 x J_1) . normal; 1D: |J_0|.
 double jacobian_determinant(int dim, const double J[9], const double normal[3]);
 

@@ -479,15 +479,12 @@ struct NormalLine {
       b.grad(xi, &dN[std::size_t(g) * 3 * n]);
     }
   }
-  // the length for node coordinates X (3n); J as model::jacobian sums it
+  // the length for node coordinates X (3n)
   double length(const double* X) const {
     double len = 0;
     for (int g = 0; g < 8; ++g) {
-      const double* dn = &dN[std::size_t(g) * 3 * n];
-      double J[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
-      for (int i = 0; i < n; ++i)
-        for (int r = 0; r < 3; ++r)
-          for (int c = 0; c < 3; ++c) J[3 * r + c] += X[3 * i + r] * dn[3 * i + c];
+      double J[9];
+      model::jacobian(X, &dN[std::size_t(g) * 3 * n], n, J);
       const double s = 2 * std::sqrt(J[d] * J[d] + J[3 + d] * J[3 + d] + J[6 + d] * J[6 + d]);
       len += 0.5 * t1 * kGaussW[g] * s;
     }
