@@ -1028,13 +1028,16 @@ void restore(State& S, const Patch& P) {
 }
 
 // The acceptance test ("accept" in untangle.hpp) of the applied patch: ok, and each element's
-// validity now.
-bool accepted(const State& S, const Patch& P, const ElemRef& bad, std::vector<std::pair<ElemRef, char>>& now) {
+// validity now (and, with `sj`, its scaled Jacobian, aligned with P.elems).
+bool accepted(const State& S, const Patch& P, const ElemRef& bad, std::vector<std::pair<ElemRef, char>>& now,
+              std::vector<double>* sj = nullptr) {
   bool ok = true;
   now.clear();
+  if (sj) sj->clear();
   for (const ElemRef& r : P.elems) {
     const auto q = S.quality_of(r);
     const char v = q.valid ? 1 : 0;
+    if (sj) sj->push_back(q.scaled_jacobian);
     now.push_back({r, v});
     if (S.valid[r.block][r.index] && !v) ok = false;
     if (r == bad && !v) ok = false;
@@ -1189,14 +1192,12 @@ bool try_lift(State& S, const ElemRef& bad, int ring, Patch& P, Budget& B, Eleme
   return false;
 }
 
-// Whether the applied patch passes the floors as well ("floor" in untangle.hpp): every element
-// that must be valid is, at its sj_floor or above (set_floors; the early exit's test).
-bool meets_floors(const State& S, const Patch& P) {
+// Whether an accepted patch passes the floors as well ("floor" in untangle.hpp): every element
+// that must be valid (it is, being accepted) is at its sj_floor or above (set_floors; the early
+// exit's test). now, sj: accepted's, for the applied patch.
+bool meets_floors(const Patch& P, const std::vector<std::pair<ElemRef, char>>& now, const std::vector<double>& sj) {
   for (std::size_t i = 0; i < P.elems.size(); ++i)
-    if (P.must_valid[i]) {
-      const auto q = S.quality_of(P.elems[i]);
-      if (!(q.valid && q.scaled_jacobian >= P.sj_floor[i])) return false;
-    }
+    if (P.must_valid[i] && !(now[i].second && sj[i] >= P.sj_floor[i])) return false;
   return true;
 }
 
@@ -1300,7 +1301,8 @@ ElementRun repair_element(State& S, const ElemRef& bad) {
         if (!r.y.allFinite()) continue;
         apply(S, P, r.y);
         std::vector<std::pair<ElemRef, char>> now;
-        const bool ok = accepted(S, P, bad, now);
+        std::vector<double> sj;
+        const bool ok = accepted(S, P, bad, now, &sj);
         if (S.logging)
           log_attempt(S, P, bad, ring, mode, r, std::chrono::duration<double>(std::chrono::steady_clock::now() - ta).count(), ok, now, run);
         if (!ok) {
@@ -1316,7 +1318,7 @@ ElementRun repair_element(State& S, const ElemRef& bad) {
           if (stuck_now) break;
           continue;
         }
-        if (attempt < (third ? 2 : 1) && !meets_floors(S, P)) {  // valid, but a later attempt may do better
+        if (attempt < (third ? 2 : 1) && !meets_floors(P, now, sj)) {  // valid, but a later attempt may do better
           ++run.below_floor;
           if (!below.size()) below = r.y;
           restore(S, P);
