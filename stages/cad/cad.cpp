@@ -562,6 +562,73 @@ SurfaceProjection Shape::project_to_face(int f, const Vec3& p, std::optional<Vec
   return r;
 }
 
+// OCCT has no bounded local search for this: ShapeAnalysis_Surface::NextValueOfUV falls back to
+// its global search whenever Newton leaves the surface's bounds (a point past a face's side:
+// the wing's shell clearance spent 0.85 s in it, an Extrema_GenExtPS grid built per call on
+// extruded surfaces), and Extrema_GenLocateExtPS is unbounded (BFGS) or stops at a bound
+// without a root. This is the textbook projected Newton for min |S(u,v) - p|^2 on a box.
+SurfaceProjection Shape::project_to_face_near(int f, const Vec3& p, Vec2 hint) const {
+  impl_->face(f);
+  auto& sd = impl_->face_seeds[f];
+  if (!sd.boxed) {
+    UVBounds b = face_uv_bounds(f);
+    sd.u0 = b.u0, sd.u1 = b.u1, sd.v0 = b.v0, sd.v1 = b.v1, sd.boxed = true;
+  }
+  const auto& surf = impl_->surfaces[f];
+  const gp_Pnt P = occt::pnt(p);
+  double u = std::clamp(hint.u, sd.u0, sd.u1), v = std::clamp(hint.v, sd.v0, sd.v1);
+  gp_Pnt S;
+  gp_Vec Su, Sv, Suu, Svv, Suv;
+  surf->D2(u, v, S, Su, Sv, Suu, Svv, Suv);
+  double f0 = S.SquareDistance(P);
+  const double tol = 1e-12 * (1 + gp_Vec(P.XYZ()).Magnitude());  // 3D step length
+  for (int it = 0; it < 50; ++it) {
+    const gp_Vec r(P, S);  // S - P
+    const double gu = r.Dot(Su), gv = r.Dot(Sv);
+    double huu = Su.Dot(Su) + r.Dot(Suu), hvv = Sv.Dot(Sv) + r.Dot(Svv), huv = Su.Dot(Sv) + r.Dot(Suv);
+    if (!(huu > 0 && hvv > 0 && huu * hvv - huv * huv > 0))  // not convex here: Gauss-Newton
+      huu = Su.Dot(Su), hvv = Sv.Dot(Sv), huv = Su.Dot(Sv);
+    // a parameter at its side of the box with the gradient pointing out stays there
+    const bool fu = (u <= sd.u0 && gu > 0) || (u >= sd.u1 && gu < 0);
+    const bool fv = (v <= sd.v0 && gv > 0) || (v >= sd.v1 && gv < 0);
+    double du = 0, dv = 0;
+    if (fu && fv) break;
+    if (fu) {
+      if (!(hvv > 0)) break;
+      dv = -gv / hvv;
+    } else if (fv) {
+      if (!(huu > 0)) break;
+      du = -gu / huu;
+    } else {
+      const double det = huu * hvv - huv * huv;
+      if (!(det > 0)) break;
+      du = (-gu * hvv + gv * huv) / det;
+      dv = (-gv * huu + gu * huv) / det;
+    }
+    // halve the step until the clamped point is nearer (at most 30 halvings)
+    bool moved = false;
+    for (int h = 0; h < 30; ++h) {
+      const double un = std::clamp(u + du, sd.u0, sd.u1), vn = std::clamp(v + dv, sd.v0, sd.v1);
+      const gp_Pnt Sn = surf->Value(un, vn);
+      const double fn = Sn.SquareDistance(P);
+      if (fn <= f0) {
+        const double step = Sn.Distance(S);
+        u = un, v = vn, f0 = fn, moved = step > tol;
+        surf->D2(u, v, S, Su, Sv, Suu, Svv, Suv);
+        break;
+      }
+      du *= 0.5, dv *= 0.5;
+    }
+    if (!moved) break;
+  }
+  SurfaceProjection r;
+  r.u = u;
+  r.v = v;
+  r.point = occt::vec(S);
+  r.distance = S.Distance(P);
+  return r;
+}
+
 namespace {
 
 // One edge use of a wire with its p-curve's ends on the face, in the direction of use.

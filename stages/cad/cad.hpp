@@ -194,6 +194,12 @@ class Shape {
   // the wing); with a hint (the (u,v) of a neighbouring node): Newton from it (~1e6 points/s).
   // Meant for points near the face (mesh nodes); a far point may get a local minimum.
   SurfaceProjection project_to_face(int face, const Vec3& p, std::optional<Vec2> hint = {}) const;
+  // Nearest point of the face's (u,v) box (face_uv_bounds) found by a local search from `hint`:
+  // Newton on the squared distance, a parameter held at the box's side while the gradient
+  // points out of it. Never a global search: it finds the minimum next to the hint, which a
+  // point just off the face (past its side, or at the layer's offset above it) has. Any result
+  // is a point of the surface, so its distance is an upper bound of the distance to the face.
+  SurfaceProjection project_to_face_near(int face, const Vec3& p, Vec2 hint) const;
   // Wires of the face, the outer wire first; each edge use with its orientation.
   std::vector<std::vector<EdgeUse>> face_wires(int face) const;
   std::vector<int> face_edges(int face) const;  // distinct edge ids, ascending

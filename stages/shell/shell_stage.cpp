@@ -1780,8 +1780,8 @@ struct Stage {
       const Vec3& x = out.shell_points[q];
       auto [j, d] = clear_widx->nearest(x, 1)[0];
       const auto& s = M.samples[clear_wi[j]];
-      if (s.kind == 0) {  // refine by projection on the sample's face
-        auto pr = mine.project_to_face(s.id, cv(x), cad::Vec2{s.u, s.v});
+      if (s.kind == 0) {  // refine by projection on the sample's face, from the sample: a local search
+        auto pr = mine.project_to_face_near(s.id, cv(x), cad::Vec2{s.u, s.v});
         if (pr.distance < d && mine.face_contains_uv(s.id, pr.u, pr.v, 1e-7)) d = pr.distance;
       }
       dw[q] = d;

@@ -119,6 +119,32 @@ TEST_CASE("projection to surfaces and curves recovers parameter and distance") {
   }
 }
 
+TEST_CASE("project_to_face_near: Newton from the hint inside the face, held at the face's side past it") {
+  Shape s = wing().s.clone();
+  const int f = wing().face("extrusion");
+  const auto b = s.face_uv_bounds(f);
+  for (double a : {0.05, 0.3, 0.5, 0.71, 0.95}) {
+    const double u = b.u0 + a * (b.u1 - b.u0), v = b.v0 + 0.4 * (b.v1 - b.v0);
+    const Vec3 p = add(s.face_point(f, u, v), s.face_normal(f, u, v), 1e-3);
+    // inside: the foot of the normal, as the global projection finds it
+    auto pn = s.project_to_face_near(f, p, meshflow::cad::Vec2{u + 0.02 * (b.u1 - b.u0), v - 0.1 * (b.v1 - b.v0)});
+    CHECK(pn.distance == doctest::Approx(1e-3).epsilon(1e-6));
+    CHECK(std::abs(pn.u - u) < 1e-7);
+    CHECK(std::abs(pn.v - v) < 1e-7 * (b.v1 - b.v0));
+    // past the face's end (the span): the nearest point of the face is on its side v = v1
+    const auto d = s.face_eval(f, u, b.v1);
+    const double tu = d.du.x * d.dv.x + d.du.y * d.dv.y + d.du.z * d.dv.z;
+    REQUIRE(std::abs(tu) < 1e-9 * norm(d.du) * norm(d.dv));  // extruded normal to the section
+    const Vec3 out = mul(d.dv, 1 / norm(d.dv));
+    const Vec3 q = add(add(d.p, out, 0.2), s.face_normal(f, u, b.v1), 0.05);
+    auto pq = s.project_to_face_near(f, q, meshflow::cad::Vec2{u, b.v0 + 0.9 * (b.v1 - b.v0)});
+    CHECK(pq.v == b.v1);
+    CHECK(std::abs(pq.u - u) < 1e-7);
+    CHECK(pq.distance == doctest::Approx(std::hypot(0.2, 0.05)).epsilon(1e-9));
+    CHECK(norm(sub(pq.point, s.face_point(f, pq.u, pq.v))) < 1e-12);  // the point is the surface's at (u, v)
+  }
+}
+
 TEST_CASE("normals point out of the fluid, curvature at the leading edge is 1/r_LE") {
   const Shape& s = wing().s;
   int f = wing().face("extrusion");
