@@ -58,7 +58,8 @@ enum PointsType : std::int64_t {
   kNodalTriEvenlySpacedPre5 = 25,
 };
 
-// zlib (level 6, Nektar++'s Z_DEFAULT_COMPRESSION) then base64, as Nektar++ writes it.
+// zlib (level 1; a section larger than 1 MiB compressed in pieces in parallel, one stream) then
+// base64 zero-padded to a multiple of 3 bytes, as Nektar++ writes it.
 std::string encode(const void* data, std::size_t bytes);
 template <class T>
 std::string encode(const std::vector<T>& v) {
