@@ -961,8 +961,9 @@ bool lift(const State& S, const Patch& P, Budget& B, Eigen::VectorXd& y) {
 struct Minimised {
   Eigen::VectorXd y;
   double fx = 0;
-  int iterations = 0;
+  int iterations = 0;  // L-BFGS's count when it returned (none when it stopped by an exception)
   bool early = false;
+  bool line_search_failed = false;  // y: the last accepted point, fx not set
   int out = -1;
 };
 Minimised minimise(Patch& P, int attempt, const UntangleOptions& opt, Budget& B, const Eigen::VectorXd& start) {
@@ -995,6 +996,7 @@ Minimised minimise(Patch& P, int attempt, const UntangleOptions& opt, Budget& B,
     r.out = e.which;  // nothing was applied to the mesh yet
   } catch (const std::exception&) {
     // a failed line search leaves y at the last accepted point, which is a descent of the energy
+    r.line_search_failed = true;
   }
   P.budget = nullptr;  // the diagnostic evaluation of the log is not charged
   P.check_every = 0;
@@ -1071,10 +1073,18 @@ void keep(State& S, const Patch& P, const std::vector<std::pair<ElemRef, char>>&
 void log_attempt(const State& S, const Patch& P, const ElemRef& bad, int ring, int mode, const Minimised& r, double seconds,
                  bool ok, const std::vector<std::pair<ElemRef, char>>& now, ElementRun& run) {
   Eigen::VectorXd g0(r.y.size()), z0 = Eigen::VectorXd::Zero(r.y.size());
+  // L-BFGS sets the energy and its iteration count only when it returns: after an early stop or
+  // a failed line search the energy is evaluated here (not charged to the budget) and the log
+  // says how it stopped instead of "0 iterations"
+  const double after = r.early || r.line_search_failed ? P(r.y, g0) : r.fx;
+  char how[48];
+  if (r.early) std::snprintf(how, sizeof how, "stopped early: acceptable");
+  else if (r.line_search_failed) std::snprintf(how, sizeof how, "stopped: the line search failed");
+  else std::snprintf(how, sizeof how, "%d iterations", r.iterations);
   char line[256];
-  std::snprintf(line, sizeof line, "untangle: element %u/%u ring %d%s: %zu free nodes, %zu elements, energy %g -> %g, %d iterations%s, %.2f s: %s",
-                bad.block, bad.index, ring, mode ? " sliding on the CAD" : "", P.free.size(), P.elems.size(), P(z0, g0), r.fx,
-                r.iterations, r.early ? " (stopped early: acceptable)" : "", seconds, ok ? "repaired" : "not repaired");
+  std::snprintf(line, sizeof line, "untangle: element %u/%u ring %d%s: %zu free nodes, %zu elements, energy %g -> %g, %s, %.2f s: %s",
+                bad.block, bad.index, ring, mode ? " sliding on the CAD" : "", P.free.size(), P.elems.size(), P(z0, g0), after,
+                how, seconds, ok ? "repaired" : "not repaired");
   run.log.push_back(line);
   for (auto& [e, v] : now)
     if (!v) {

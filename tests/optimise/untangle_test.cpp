@@ -439,8 +439,14 @@ TEST_CASE("untangle in parallel: many invalid elements, some with overlapping pa
   CHECK(a.z == c.z);
   // the per-attempt log lines come in the order of the invalid elements, whatever ran first
   // (their times differ, so compare what precedes the time)
+  // (", 0.12 s: repaired" -> ": repaired"; a line without a time as it is)
+  auto untimed = [](const std::string& l) {
+    const auto e = l.rfind(" s: ");
+    if (e == std::string::npos) return l;
+    return l.substr(0, l.rfind(", ", e)) + l.substr(e + 2);
+  };
   REQUIRE(log1.size() == log2.size());
-  for (std::size_t i = 0; i < log1.size(); ++i) CHECK(log1[i].substr(0, log1[i].find(" iterations")) == log2[i].substr(0, log2[i].find(" iterations")));
+  for (std::size_t i = 0; i < log1.size(); ++i) CHECK(untimed(log1[i]) == untimed(log2[i]));
   CHECK(invalid(a) == r1.invalid_after);
 }
 
