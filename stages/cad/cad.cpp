@@ -46,6 +46,9 @@
 #include <TopoDS_Wire.hxx>
 #include <TopoDS_Vertex.hxx>
 
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
@@ -323,7 +326,24 @@ Box box_of(const TopoDS_Shape& s) {
 }
 }  // namespace
 
-Box Shape::box() const { return box_of(impl_->shape); }
+// BRepBndLib::AddOptimal of a shape adds each face's box (TopExp_Explorer over the faces), then
+// the boxes of the edges outside faces and of the vertices outside edges. Where there are none
+// (a solid, a closed shell), the union of the faces' own AddOptimal boxes, taken in parallel,
+// is the same box: a union is a min and a max per coordinate, exact in any order. DLR-F6's
+// healed solid: 0.72 s on one thread (the optimal box of a B-spline face is an optimisation).
+Box Shape::box(int threads) const {
+  if (threads <= 1 || TopExp_Explorer(impl_->shape, TopAbs_EDGE, TopAbs_FACE).More() ||
+      TopExp_Explorer(impl_->shape, TopAbs_VERTEX, TopAbs_EDGE).More())
+    return box_of(impl_->shape);
+  const int nf = impl_->faces.Extent();
+  std::vector<Bnd_Box> fb(static_cast<std::size_t>(nf));
+  tbb::task_arena(threads).execute([&] {
+    tbb::parallel_for(0, nf, [&](int f) { BRepBndLib::AddOptimal(impl_->faces(f + 1), fb[std::size_t(f)], Standard_False, Standard_False); });
+  });
+  Bnd_Box b;
+  for (const Bnd_Box& x : fb) b.Add(x);
+  return to_box(b);
+}
 double Shape::volume() const {
   double v = 0;
   for (int i = 1; i <= impl_->solids.Extent(); ++i) {

@@ -138,7 +138,9 @@ class Shape {
   std::vector<int> faces_with_tag(Tag tag) const;
 
   // ── whole shape ──
-  Box box() const;
+  // OCCT's optimal box (BRepBndLib::AddOptimal); threads > 1: its faces' boxes computed in
+  // parallel in a task arena of that many threads, their union the same box
+  Box box(int threads = 1) const;
   double volume() const;  // of the solids (0 without solids)
   // The same by OCCT's adaptive integration to a relative tolerance (slower; not right on every
   // trimmed face either: see cad.cpp).

@@ -24,6 +24,7 @@
 #include <functional>
 #include <map>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -98,7 +99,8 @@ class Log {
 };
 
 // Summary of a shape for golden regression and stats (counts, volume, area, bbox, tags).
-nlohmann::json summarize(const Shape& s);
+// threads: for the box (Shape::box); volume: the shape's volume() when the caller has it already.
+nlohmann::json summarize(const Shape& s, int threads = 1, std::optional<double> volume = {});
 
 // Removes OCCT's console printers for good (used where no sink is available).
 void silence();

@@ -10,7 +10,7 @@
 namespace meshflow::cad {
 
 // Summary for golden regression and report.json.
-nlohmann::json occt::summarize(const Shape& s) {
+nlohmann::json occt::summarize(const Shape& s, int threads, std::optional<double> volume) {
   nlohmann::json j;
   j["units"] = s.units();
   j["solids"] = s.num_solids();
@@ -18,9 +18,9 @@ nlohmann::json occt::summarize(const Shape& s) {
   j["faces"] = s.num_faces();
   j["edges"] = s.num_edges();
   j["vertices"] = s.num_vertices();
-  j["volume"] = s.volume();
+  j["volume"] = volume ? *volume : s.volume();
   j["area"] = s.area();
-  Box b = s.box();
+  Box b = s.box(threads);
   j["bbox"] = {{"min", {b.lo.x, b.lo.y, b.lo.z}}, {"max", {b.hi.x, b.hi.y, b.hi.z}}};
   std::map<std::string, int> tags;
   for (int f = 0; f < s.num_faces(); ++f) tags[tag_name(s.face_tag(f))]++;

@@ -611,8 +611,8 @@ void run(StageContext& ctx) {
                        "\nRepair the CAD in its source system (the named faces cross each other).");
     }
   }
-  if (out.volume() <= 0)
-    throw StageError(src + ": the fluid solid has volume " + fmt(out.volume()) + " <= 0 (inside out)");
+  const double volume = out.volume();
+  if (volume <= 0) throw StageError(src + ": the fluid solid has volume " + fmt(volume) + " <= 0 (inside out)");
   std::vector<int> slivers;
   std::string sliver_msg;
   for (int f = 0; f < out.num_faces(); ++f) {
@@ -637,7 +637,7 @@ void run(StageContext& ctx) {
 
   st["fixes"] = fixes;
   st["after"] = to_json(count(fluid, tol));
-  json summary = cad::occt::summarize(out);
+  json summary = cad::occt::summarize(out, ctx.threads(), volume);
   st["volume"] = summary["volume"];
   st["area"] = summary["area"];
   st["face_tags"] = summary["face_tags"];

@@ -275,6 +275,14 @@ TEST_CASE("relative file paths resolve against the workflow folder, DLR-F6 loads
   CHECK(s.units() == "mm");
   // the half model's symmetry plane is y = 0
   CHECK(std::abs(s.box().hi.y) < 1e-6);
+  // the faces' boxes in parallel give OCCT's box of the whole solid, bit for bit
+  const auto b1 = s.box(), b2 = s.box(2);
+  CHECK(b1.lo.x == b2.lo.x);
+  CHECK(b1.lo.y == b2.lo.y);
+  CHECK(b1.lo.z == b2.lo.z);
+  CHECK(b1.hi.x == b2.hi.x);
+  CHECK(b1.hi.y == b2.hi.y);
+  CHECK(b1.hi.z == b2.hi.z);
 }
 
 TEST_CASE("IGES: the paper's wing exported as IGES (in mm) and imported by the step kind: same faces, units and box") {
