@@ -451,7 +451,7 @@ class Stage {
     V3 clo{0, 0, 0}, chi{0, 0, 0};
     for (int e : lo) for (auto& p : ends(e)) clo = add(clo, mul(p, 0.5 / lo.size()));
     for (int e : hi) for (auto& p : ends(e)) chi = add(chi, mul(p, 0.5 / hi.size()));
-    auto box = shape.box();
+    auto box = shape.box(ctx.threads());  // the faces' boxes in parallel
     double tol = 1e-6 * norm(sub(v3(box.hi), v3(box.lo)));
     std::vector<std::pair<std::string, std::function<V3(V3)>>> maps;
     V3 T = sub(chi, clo);

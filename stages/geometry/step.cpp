@@ -32,7 +32,7 @@ void run(StageContext& ctx) {
   ctx.progress(0.8, "indexing");
   const std::string units = shape.units();
   int free_edges = 0, small_edges = 0, degenerate = 0;
-  cad::Box bb = shape.box();
+  cad::Box bb = shape.box(ctx.threads());  // OCCT's optimal box, the faces' in parallel
   double diag = std::hypot(bb.hi.x - bb.lo.x, bb.hi.y - bb.lo.y, bb.hi.z - bb.lo.z);
   double min_len = 1e300;
   for (int e = 0; e < shape.num_edges(); ++e) {

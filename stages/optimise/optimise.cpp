@@ -336,7 +336,7 @@ Report optimise_mesh(Mesh& m, const cad::Shape& shape, const Options& opt, int t
       throw StageError("optimise: mixed orders among the " + std::to_string(dim) + "D elements (" + std::to_string(b.order) +
                        " and " + std::to_string(P) + "); optimise expects one order P from the curve stage");
 
-  auto bb = shape.box();
+  auto bb = shape.box(threads > 0 ? threads : tbb::this_task_arena::max_concurrency());  // the faces' boxes in parallel
   double diag = norm(v3(bb.hi) - v3(bb.lo));
   {
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
