@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdio>
 #include <limits>
+#include <thread>
 
 namespace meshflow::init {
 
@@ -174,7 +175,7 @@ Analysis analyse(const Shape& s) {
   a.shells = s.num_shells();
   a.faces = s.num_faces();
   if (a.faces == 0) throw StageError("the CAD file holds no faces: nothing to mesh");
-  a.box = s.box();
+  a.box = s.box(static_cast<int>(std::max(1u, std::thread::hardware_concurrency())));  // the faces' boxes in parallel: the same box
   a.extent = largest_side(a.box);
   const double tol = 1e-6 * std::hypot(side(a.box, 0), side(a.box, 1), side(a.box, 2));
   classify(s, a, tol);
