@@ -535,6 +535,13 @@ bool Shape::face_contains_uv(int f, double u, double v, double tol) const {
   return st == TopAbs_IN || st == TopAbs_ON;
 }
 
+// The face's (u,v) box (face_uv_bounds), computed once per face and shape copy.
+const UVBounds& Shape::seed_box(int f) const {
+  auto& box = impl_->face_seeds[f].box;
+  if (!box) box = face_uv_bounds(f);
+  return *box;
+}
+
 SurfaceProjection Shape::project_to_face(int f, const Vec3& p, std::optional<Vec2> hint) const {
   impl_->face(f);
   auto& sas = impl_->face_proj[f];
@@ -549,7 +556,7 @@ SurfaceProjection Shape::project_to_face(int f, const Vec3& p, std::optional<Vec
     // search (Extrema) when that does not improve on the grid point.
     auto& sd = impl_->face_seeds[f];
     if (sd.p.empty()) {
-      UVBounds b = face_uv_bounds(f);
+      const UVBounds& b = seed_box(f);
       const int n = 24;
       for (int i = 0; i <= n; ++i)
         for (int j = 0; j <= n; ++j) {
@@ -589,14 +596,10 @@ SurfaceProjection Shape::project_to_face(int f, const Vec3& p, std::optional<Vec
 // without a root. This is the textbook projected Newton for min |S(u,v) - p|^2 on a box.
 SurfaceProjection Shape::project_to_face_near(int f, const Vec3& p, Vec2 hint) const {
   impl_->face(f);
-  auto& sd = impl_->face_seeds[f];
-  if (!sd.boxed) {
-    UVBounds b = face_uv_bounds(f);
-    sd.u0 = b.u0, sd.u1 = b.u1, sd.v0 = b.v0, sd.v1 = b.v1, sd.boxed = true;
-  }
+  const UVBounds& box = seed_box(f);
   const auto& surf = impl_->surfaces[f];
   const gp_Pnt P = occt::pnt(p);
-  double u = std::clamp(hint.u, sd.u0, sd.u1), v = std::clamp(hint.v, sd.v0, sd.v1);
+  double u = std::clamp(hint.u, box.u0, box.u1), v = std::clamp(hint.v, box.v0, box.v1);
   gp_Pnt S;
   gp_Vec Su, Sv, Suu, Svv, Suv;
   surf->D2(u, v, S, Su, Sv, Suu, Svv, Suv);
@@ -609,8 +612,8 @@ SurfaceProjection Shape::project_to_face_near(int f, const Vec3& p, Vec2 hint) c
     if (!(huu > 0 && hvv > 0 && huu * hvv - huv * huv > 0))  // not convex here: Gauss-Newton
       huu = Su.Dot(Su), hvv = Sv.Dot(Sv), huv = Su.Dot(Sv);
     // a parameter at its side of the box with the gradient pointing out stays there
-    const bool fu = (u <= sd.u0 && gu > 0) || (u >= sd.u1 && gu < 0);
-    const bool fv = (v <= sd.v0 && gv > 0) || (v >= sd.v1 && gv < 0);
+    const bool fu = (u <= box.u0 && gu > 0) || (u >= box.u1 && gu < 0);
+    const bool fv = (v <= box.v0 && gv > 0) || (v >= box.v1 && gv < 0);
     double du = 0, dv = 0;
     if (fu && fv) break;
     if (fu) {
@@ -628,7 +631,7 @@ SurfaceProjection Shape::project_to_face_near(int f, const Vec3& p, Vec2 hint) c
     // halve the step until the clamped point is nearer (at most 30 halvings)
     bool moved = false;
     for (int h = 0; h < 30; ++h) {
-      const double un = std::clamp(u + du, sd.u0, sd.u1), vn = std::clamp(v + dv, sd.v0, sd.v1);
+      const double un = std::clamp(u + du, box.u0, box.u1), vn = std::clamp(v + dv, box.v0, box.v1);
       const gp_Pnt Sn = surf->Value(un, vn);
       const double fn = Sn.SquareDistance(P);
       if (fn <= f0) {

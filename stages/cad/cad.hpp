@@ -228,6 +228,7 @@ class Shape {
   explicit Shape(std::unique_ptr<Impl> impl);
 
  private:
+  const UVBounds& seed_box(int face) const;  // face_uv_bounds, cached with the projection seeds
   std::unique_ptr<Impl> impl_;
 };
 

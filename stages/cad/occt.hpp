@@ -44,8 +44,7 @@ struct Shape::Impl {
   struct Seeds {
     std::vector<gp_Pnt> p;
     std::vector<double> u, v;
-    bool boxed = false;  // box: face_uv_bounds, kept for project_to_face_near
-    double u0 = 0, u1 = 0, v0 = 0, v1 = 0;
+    std::optional<UVBounds> box;  // face_uv_bounds, kept (the grid above and project_to_face_near)
   };
   mutable std::vector<Seeds> face_seeds;  // a grid over the face's (u,v) bounds: start points
   // point-in-face classifiers, by face id and tolerance (face_contains_uv)

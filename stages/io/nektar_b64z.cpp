@@ -21,9 +21,7 @@ constexpr std::size_t kChunk3 = 3u << 20;        // binary bytes per EVP_EncodeB
 constexpr std::size_t kChunk4 = 4u << 20;        // base64 characters per EVP_DecodeBlock call (a multiple of 4)
 
 bool is_b64(unsigned char c) { return (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '+' || c == '/'; }
-}  // namespace
 
-namespace {
 // zlib's fixed two-byte header of a level-1 stream (what compress2 writes at kLevel): CMF 0x78
 // (deflate, 32 KiB window), FLG 0x01 (FLEVEL 0 "fastest", no dictionary, check bits).
 constexpr unsigned char kHeader[2] = {0x78, 0x01};
@@ -85,7 +83,7 @@ std::string encode(const void* data, std::size_t bytes) {
     // zlib's worst case (compressBound) as an uninitialised buffer: only the pages compress2
     // writes become resident, about the compressed size
     uLongf zlen = compressBound(static_cast<uLong>(bytes));
-    std::unique_ptr<Bytef[]> z(new Bytef[zlen + 2]);
+    std::unique_ptr<Bytef[]> z(new Bytef[zlen]);
     const int rc = compress2(z.get(), &zlen, in, static_cast<uLong>(bytes), kLevel);
     if (rc != Z_OK) throw MeshIOError(std::string("zlib compression failed: ") + zError(rc));
     std::string out;

@@ -1287,7 +1287,10 @@ ElementRun repair_element(State& S, const ElemRef& bad) {
       // the target on the coarse samples first, then a higher one on the dense samples: samples
       // just above the target can leave det J negative between them, which the Bezier check
       // finds; then (tets, prisms) half the target on det J's Bernstein coefficients, which see the dips
-      Eigen::VectorXd below;  // the first accepted result below the floors ("floor"), kept if no attempt passes them
+      // the first accepted result below the floors ("floor") and its acceptance test, kept if no
+      // attempt passes them
+      Eigen::VectorXd below;
+      std::vector<std::pair<ElemRef, char>> below_now;
       // the applied patch is kept (init-captures: clang 14 cannot capture structured bindings)
       auto repaired = [&, ring = ring, mode = mode](const std::vector<std::pair<ElemRef, char>>& now) {
         keep(S, P, now, run);
@@ -1334,21 +1337,16 @@ ElementRun repair_element(State& S, const ElemRef& bad) {
         }
         if (attempt < (third ? 2 : 1) && !meets_floors(P, now, sj)) {  // valid, but a later attempt may do better
           ++run.below_floor;
-          if (!below.size()) below = r.y;
+          if (!below.size()) below = r.y, below_now = now;
           restore(S, P);
           continue;
         }
         repaired(now);
       }
-      if (!done && below.size()) {  // no attempt passed the floors: the first valid result
-        apply(S, P, below);
-        std::vector<std::pair<ElemRef, char>> now;
-        if (accepted(S, P, bad, now)) {
-          repaired(now);
-          out = -1;  // a budget that ran out in a later attempt does not undo it
-        } else {
-          restore(S, P);
-        }
+      if (!done && below.size()) {  // no attempt passed the floors: the first valid result, as it was accepted
+        apply(S, P, below);  // the same coordinates, so the same qualities as when it was accepted
+        repaired(below_now);
+        out = -1;  // a budget that ran out in a later attempt does not undo it
       }
     }
   }

@@ -1083,10 +1083,10 @@ static Result split_impl(const Mesh& in, Mesh* consume, const Options& opt, int 
   }
 
   // The numbering's maps and the per-macro fine-point ids are done with: release them before
-  // the compaction and the conformity check, which then hold the output mesh, the input's
-  // elements (its nodes too, unless consumed) and one topology (the stage's peak memory)
+  // the compaction and the conformity check, which then hold the output mesh, the input (unless
+  // consumed) and one topology (the stage's peak memory)
   keyed = SharedPoints();
-  release(fid), release(owner), release(walls), release(bfaces), release(bedges);
+  release(fid), release(walls), release(bfaces), release(bedges);
   release(split_faces), release(split_edges), release(master);
   if (consume) release(consume->blocks);  // the input is not read again (its topology was counted first)
 
