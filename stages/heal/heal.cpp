@@ -7,8 +7,13 @@
 //   3. ShapeFix_Shape (wires, edges, orientation, tolerances)
 //   4. small edges (< tolerance) merged into neighbours (ShapeFix_Wireframe) [fix_small_edges]
 //   5. spot/strip faces (< tolerance wide) removed (ShapeFix_FixSmallFace) [fix_small_faces]
+//   1-5 again until the shape is closed (repair_closed): a closed input that they opened is
+//      repaired with a lower tolerance (healing never opens a closed solid); an open input (a
+//      surface model) is sewn with the gaps measured between its free edges, then its planar
+//      openings are capped with plane faces, each reported                   [cap_planar_holes]
 //   6. the fluid solid: the given closed shell(s) (outer minus inner), or a box around the body
-//      minus the body                                                      [fluid]
+//      minus the body; of a region in several pieces the largest is kept, the enclosed voids
+//      dropped with a note                                                 [fluid]
 //   7. same-domain faces and edges unified (ShapeUpgrade_UnifySameDomain)  [unify]
 //   8. checks: BRepCheck valid, every edge bounds exactly two faces, positive volume, no
 //      self-interference (faces of the solid crossing each other, or an edge or vertex lying
@@ -19,6 +24,7 @@
 // old face), or, when the input has none (a raw STEP), by the box rule (cad::occt::tags_by_box).
 #include "engine/stage.hpp"
 #include "stages/cad/cad.hpp"
+#include "stages/cad/domain_rules.hpp"
 #include "stages/cad/occt.hpp"
 #include "stages/cad/tag_rules.hpp"
 #include "stages/contract/contract.hpp"
@@ -31,19 +37,25 @@
 #include <BRepAlgoAPI_Cut.hxx>
 #include <BRepAlgoAPI_Fuse.hxx>
 #include <BRepBndLib.hxx>
+#include <BRepBuilderAPI_MakeFace.hxx>
 #include <BRepBuilderAPI_MakeSolid.hxx>
 #include <BRepBuilderAPI_MakeVertex.hxx>
 #include <BRepBuilderAPI_Sewing.hxx>
 #include <BRepCheck_Analyzer.hxx>
 #include <BRepClass3d.hxx>
+#include <BRepClass3d_SolidClassifier.hxx>
 #include <BRepExtrema_DistShapeShape.hxx>
 #include <BRepGProp.hxx>
+#include <BRepLib_FindSurface.hxx>
 #include <BRepPrimAPI_MakeBox.hxx>
 #include <BRep_Builder.hxx>
 #include <BRep_Tool.hxx>
 #include <Bnd_Box.hxx>
 #include <GProp_GProps.hxx>
+#include <Geom_Plane.hxx>
+#include <ShapeAnalysis_FreeBounds.hxx>
 #include <ShapeExtend_Status.hxx>
+#include <ShapeFix_Face.hxx>
 #include <ShapeFix_FixSmallFace.hxx>
 #include <ShapeFix_Shape.hxx>
 #include <ShapeFix_Shell.hxx>
@@ -59,12 +71,14 @@
 #include <TopoDS_Compound.hxx>
 #include <TopoDS_Shell.hxx>
 #include <TopoDS_Solid.hxx>
+#include <TopoDS_Wire.hxx>
 
 #include <algorithm>
 #include <array>
 #include <set>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <sstream>
 
 namespace meshflow::heal {
@@ -210,6 +224,18 @@ void outer_shell_farfield(const TopoDS_Shape& fluid, std::vector<Tag>& tags) {
 
 double diag_of(const Bnd_Box& b) { return b.IsVoid() ? 0 : std::sqrt(b.SquareExtent()); }
 
+// A given domain that is not box-shaped and has no holes (a half sphere or half cylinder around a
+// half model cut into its symmetry plane): its large curved faces next to the box planes are the
+// far field, not walls (cad::curved_farfield, the rule init reads the file with).
+void curved_farfield_tags(const TopoDS_Shape& fluid, std::vector<Tag>& tags, double tol) {
+  Shape sh = cad::occt::make_shape(fluid, "");
+  if (sh.num_shells() != 1) return;
+  const cad::Box b = sh.box();
+  if (cad::box_corner_vertices(sh, b, tol) == 8) return;
+  for (int f : cad::curved_farfield(sh, b, tol))
+    if (tags[f] == Tag::wall) tags[f] = Tag::farfield;
+}
+
 // The solids of `s` fused into one body (BRepAlgoAPI_Fuse, then the faces the fusion split on
 // one surface unified); `s` as it is with fewer than two solids or when the solids are apart.
 TopoDS_Shape fuse_solids(const TopoDS_Shape& s, json& fixes, StageContext& ctx) {
@@ -343,39 +369,47 @@ SelfInterference self_interference(const Shape& s, int level, bool parallel) {
   return r;
 }
 
-void run(StageContext& ctx) {
-  const auto& P = ctx.params();
-  Shape in = Shape::load(ctx.input("shape").path);
-  cad::occt::Log log([&](const std::string& s) { ctx.log(s); });
-  const std::string src = "heal stage '" + ctx.stage_name() + "'";
+// The heal parameters, read once.
+struct Options {
+  double tol = 0;   // the tolerance asked for (0 in the params: 1e-6 of the body's diagonal)
+  bool user_tol = false;
+  bool sew = true, small_edges = true, small_faces = true, unify = true, cap_holes = true, check_si = true;
+  int si_level = 5;
+  std::string fluid, tags, symmetry_plane;
+};
+Options read_options(const nlohmann::json& P, const TopoDS_Shape& in, double diag) {
+  Options o;
+  o.tol = P.at("tolerance").get<double>();
+  o.user_tol = o.tol > 0;
+  if (!o.user_tol) o.tol = 1e-6 * body_diagonal(in, diag);
+  o.sew = P.at("sew").get<bool>();
+  o.small_edges = P.at("fix_small_edges").get<bool>();
+  o.small_faces = P.at("fix_small_faces").get<bool>();
+  o.unify = P.at("unify").get<bool>();
+  o.cap_holes = P.at("cap_planar_holes").get<bool>();
+  o.check_si = P.at("check_self_intersection").get<std::string>() != "off";
+  o.si_level = P.at("check_self_intersection").get<std::string>() == "edges" ? 4 : 5;
+  o.fluid = P.at("fluid").get<std::string>();
+  o.tags = P.at("tags").get<std::string>();
+  o.symmetry_plane = P.at("symmetry_plane").get<std::string>();
+  return o;
+}
 
-  Bnd_Box bb;
-  BRepBndLib::Add(cad::occt::shape(in), bb);
-  const double diag = diag_of(bb);
-  double tol = P.at("tolerance").get<double>();
-  if (tol <= 0) tol = 1e-6 * body_diagonal(cad::occt::shape(in), diag);
-  const bool sew = P.at("sew").get<bool>(), small_edges = P.at("fix_small_edges").get<bool>(),
-             small_faces = P.at("fix_small_faces").get<bool>(), unify = P.at("unify").get<bool>(),
-             check_si = P.at("check_self_intersection").get<std::string>() != "off";
-  const int si_level = P.at("check_self_intersection").get<std::string>() == "edges" ? 4 : 5;
-  const std::string fluid_mode = P.at("fluid").get<std::string>(), tag_mode = P.at("tags").get<std::string>();
-  const std::string symmetry_plane = P.at("symmetry_plane").get<std::string>();
-  if (symmetry_plane != "none" && fluid_mode != "box")
-    throw StageError(src + ": symmetry_plane: " + symmetry_plane + " needs fluid: box (it says which side of the body's "
-                     "far-field box lies on its root plane)");
-  auto& st = ctx.stats();
-  st["tolerance"] = tol;
-  json fixes = json::object();
-  TopoDS_Shape s = cad::occt::shape(in);
-  st["before"] = to_json(count(s, tol));
-  if (in.num_faces() == 0) throw StageError(src + ": the input shape has no faces: nothing to heal");
+// Which repairs one attempt makes (steps 1-2, 4, 5; ShapeFix always runs).
+struct Steps {
+  bool sew = true, small_edges = true, small_faces = true;
+};
 
+// Steps 0-5 with tolerance `tol`: fuse a box body's solids, drop duplicate faces, sew, ShapeFix,
+// small edges, small faces. Each step's counts go to `fixes`.
+TopoDS_Shape repair(TopoDS_Shape s, double tol, double diag, const Steps& steps, bool fuse, json& fixes,
+                    StageContext& ctx, const std::string& src) {
   try {
     // 0. a body made of several solids (a wing and a fuselage, parts that share faces or
     // overlap) is one body: fused before anything is sewn or cut, so their shared faces go
-    if (fluid_mode == "box") s = fuse_solids(s, fixes, ctx);
+    if (fuse) s = fuse_solids(s, fixes, ctx);
     // 1-2. duplicates, sewing
-    if (sew) {
+    if (steps.sew) {
       ctx.progress(0.05, "duplicate faces");
       int dropped = 0;
       s = drop_duplicates(s, tol, dropped, ctx);
@@ -388,8 +422,8 @@ void run(StageContext& ctx) {
       fixes["sewing"] = {{"contiguous_edges", sw.NbContigousEdges()}, {"free_edges_after", sw.NbFreeEdges()},
                          {"multiple_edges_after", sw.NbMultipleEdges()}, {"degenerated_shapes", sw.NbDegeneratedShapes()},
                          {"deleted_faces", sw.NbDeletedFaces()}};
-      ctx.log("heal: sewing joined " + std::to_string(sw.NbContigousEdges()) + " edge pairs; free edges left " +
-              std::to_string(sw.NbFreeEdges()));
+      ctx.log("heal: sewing with tolerance " + fmt(tol) + " joined " + std::to_string(sw.NbContigousEdges()) +
+              " edge pairs; free edges left " + std::to_string(sw.NbFreeEdges()));
     }
     // 3. ShapeFix
     ctx.progress(0.3, "ShapeFix");
@@ -402,7 +436,7 @@ void run(StageContext& ctx) {
       fixes["shapefix"] = {{"done", (bool)fx->Status(ShapeExtend_DONE)}, {"failed", (bool)fx->Status(ShapeExtend_FAIL)}};
     }
     // 4. small edges
-    if (small_edges) {
+    if (steps.small_edges) {
       ctx.progress(0.4, "small edges");
       int before = count(s, tol).small_edges;
       Handle(ShapeFix_Wireframe) wf = new ShapeFix_Wireframe(s);
@@ -416,7 +450,7 @@ void run(StageContext& ctx) {
       fixes["small_edges"] = {{"before", before}, {"after", after}};
     }
     // 5. small faces
-    if (small_faces) {
+    if (steps.small_faces) {
       ctx.progress(0.5, "small faces");
       int before = count(s, tol).faces;
       ShapeFix_FixSmallFace sf;
@@ -431,31 +465,282 @@ void run(StageContext& ctx) {
     throw StageError(src + ": OpenCASCADE failed while repairing the shape (" + e.GetMessageString() +
                      "); try another tolerance or repair the CAD in its source system");
   }
+  return s;
+}
 
+int free_edge_count(const TopoDS_Shape& s) { return (int)cad::occt::make_shape(s, "").free_edges().size(); }
+
+// The gaps between a shape's free edges: for each free edge, the distance from its midpoint to
+// the nearest free edge that shares no vertex with it (two faces' edges that should have been
+// sewn lie that far apart). Sorted, ascending; edges with no such neighbour give none.
+std::vector<double> free_edge_gaps(const TopoDS_Shape& s) {
+  Shape sh = cad::occt::make_shape(s, "");
+  const std::vector<int> fe = sh.free_edges();
+  std::vector<Bnd_Box> boxes(fe.size());
+  for (size_t i = 0; i < fe.size(); ++i) BRepBndLib::Add(sh.impl().edge(fe[i]), boxes[i]);
+  std::vector<double> gaps;
+  for (size_t i = 0; i < fe.size(); ++i) {
+    const TopoDS_Edge& e = sh.impl().edge(fe[i]);
+    auto r = sh.edge_range(fe[i]);
+    TopoDS_Vertex mid = BRepBuilderAPI_MakeVertex(cad::occt::pnt(sh.edge_point(fe[i], 0.5 * (r.lo + r.hi))));
+    TopoDS_Vertex a, b;
+    TopExp::Vertices(e, a, b);
+    double best = std::numeric_limits<double>::infinity();
+    for (size_t j = 0; j < fe.size(); ++j) {
+      if (j == i) continue;
+      const TopoDS_Edge& g = sh.impl().edge(fe[j]);
+      TopoDS_Vertex c, d;
+      TopExp::Vertices(g, c, d);
+      if (a.IsSame(c) || a.IsSame(d) || b.IsSame(c) || b.IsSame(d)) continue;
+      if (std::isfinite(best)) {
+        Bnd_Box q = boxes[i];
+        q.Enlarge(best);
+        if (q.IsOut(boxes[j])) continue;
+      }
+      BRepExtrema_DistShapeShape dist(mid, g);
+      if (dist.IsDone() && dist.Value() < best) best = dist.Value();
+    }
+    if (std::isfinite(best)) gaps.push_back(best);
+  }
+  std::sort(gaps.begin(), gaps.end());
+  return gaps;
+}
+
+// The openings of a shape: its free edges joined into wires (closed loops and open chains).
+struct Openings {
+  std::vector<TopoDS_Wire> closed, open;
+};
+Openings openings_of(const TopoDS_Shape& s, double tol) {
+  ShapeAnalysis_FreeBounds fb(s, tol, Standard_False, Standard_False);
+  Openings o;
+  for (TopExp_Explorer ex(fb.GetClosedWires(), TopAbs_WIRE); ex.More(); ex.Next()) o.closed.push_back(TopoDS::Wire(ex.Current()));
+  for (TopExp_Explorer ex(fb.GetOpenWires(), TopAbs_WIRE); ex.More(); ex.Next()) o.open.push_back(TopoDS::Wire(ex.Current()));
+  return o;
+}
+
+// "opening 2: 4 edges, centre (..), across 1.2, planar" for a message.
+std::string describe_opening(const TopoDS_Wire& w, int i, double tol, bool closed) {
+  Bnd_Box b;
+  BRepBndLib::Add(w, b);
+  double x0, y0, z0, x1, y1, z1;
+  b.Get(x0, y0, z0, x1, y1, z1);
+  int n = 0;
+  for (TopExp_Explorer ex(w, TopAbs_EDGE); ex.More(); ex.Next()) ++n;
+  BRepLib_FindSurface fs(w, tol, Standard_True);
+  return "opening " + std::to_string(i) + ": " + std::to_string(n) + " free edge(s) around " +
+         pt({(x0 + x1) / 2, (y0 + y1) / 2, (z0 + z1) / 2}) + ", across " + fmt(diag_of(b)) + ", " +
+         (!closed ? "not a closed loop" : fs.Found() ? "planar" : "not planar");
+}
+
+// Planar openings closed by a plane face each and sewn on (a blade's root and tip, a pipe's end
+// left open by a surface model). Returns the shape with the caps, or `s` when none was planar.
+TopoDS_Shape cap_planar_openings(const TopoDS_Shape& s, double tol, json& fixes, StageContext& ctx) {
+  Openings o = openings_of(s, tol);
+  std::vector<TopoDS_Face> caps;
+  json made = json::array();
+  for (size_t i = 0; i < o.closed.size(); ++i) {
+    BRepLib_FindSurface fs(o.closed[i], tol, Standard_True);
+    if (!fs.Found()) continue;
+    Handle(Geom_Plane) plane = Handle(Geom_Plane)::DownCast(fs.Surface());
+    if (plane.IsNull()) continue;
+    BRepBuilderAPI_MakeFace mf(plane, o.closed[i], Standard_True);
+    if (!mf.IsDone()) continue;
+    ShapeFix_Face fix(mf.Face());
+    fix.Perform();
+    TopoDS_Face cap = fix.Face();
+    gp_Pnt c = cad::occt::interior_point(cap);
+    // a loop around a face of the shape itself (a loose flat sheet) is no opening to close
+    BRepExtrema_DistShapeShape on(BRepBuilderAPI_MakeVertex(c).Vertex(), s);
+    if (on.IsDone() && on.Value() <= 10 * tol) continue;
+    caps.push_back(cap);
+    gp_Dir n = plane->Position().Direction();
+    made.push_back({{"edges", describe_opening(o.closed[i], (int)i, tol, true)}, {"area", face_area(cap)},
+                    {"point", {c.X(), c.Y(), c.Z()}}, {"normal", {n.X(), n.Y(), n.Z()}}});
+  }
+  if (caps.empty()) return s;
+  BRepBuilderAPI_Sewing sw(tol, Standard_True, Standard_True, Standard_True, Standard_False);
+  sw.Add(s);
+  for (auto& f : caps) sw.Add(f);
+  sw.Perform();
+  fixes["planar_holes_capped"] = made;
+  ctx.log("heal: " + std::to_string(caps.size()) + " planar opening(s) closed by a plane face each (stats.fixes.planar_holes_capped)");
+  return sw.SewedShape();
+}
+
+// Steps 0-5 until the shape is closed, where it can be without inventing geometry:
+//   - a closed input that repairing opened (the tolerance collapsed small features: a trailing
+//     edge's faces on a domain many chords across) is repaired again with the tolerance lowered
+//     100 and 10,000 times, then with ShapeFix alone: healing never opens a closed solid;
+//   - an open input (a surface model) is sewn again with the gaps measured between its free
+//     edges (up to 1 % of its diagonal: a gap wider than that is a missing face, not an
+//     inaccuracy), then its planar openings are capped.
+// Returns the repaired shape and the sewing tolerance used (`tol`); what was tried goes to fixes.
+TopoDS_Shape repair_closed(const TopoDS_Shape& in, const Options& o, double diag, double& tol, json& fixes,
+                           StageContext& ctx, const std::string& src) {
+  const Counts before = count(in, tol);
+  const bool input_closed = before.free_edges == 0 && before.solids > 0;
+  const Steps asked{o.sew, o.small_edges, o.small_faces};
+  const bool fuse = o.fluid == "box";
+  TopoDS_Shape s = repair(in, tol, diag, asked, fuse, fixes, ctx, src);
+  int fe = free_edge_count(s);
+  if (fe == 0) return s;
+  if (input_closed) {
+    for (double t : {tol / 100, tol / 1e4}) {
+      json f = json::object();
+      TopoDS_Shape r = repair(in, t, diag, asked, fuse, f, ctx, src);
+      if (free_edge_count(r) == 0) {
+        fixes = f;
+        fixes["tolerance_lowered"] = {{"from", tol}, {"to", t}, {"free_edges_at_first", fe}};
+        ctx.log("heal: the input was closed and repairing with tolerance " + fmt(tol) + " left " + std::to_string(fe) +
+                " free edge(s) (features smaller than the tolerance collapsed): repaired again with " + fmt(t));
+        tol = t;
+        return r;
+      }
+    }
+    json f = json::object();
+    TopoDS_Shape r = repair(in, tol, diag, Steps{false, false, false}, fuse, f, ctx, src);
+    if (free_edge_count(r) == 0) {
+      fixes = f;
+      fixes["repairs_skipped"] = {{"why", "sewing and the small-entity fixes opened the closed input"}, {"free_edges_at_first", fe}};
+      ctx.log("heal: the input was closed and sewing or the small-entity fixes opened it at every tolerance tried: "
+              "only ShapeFix was applied");
+      return r;
+    }
+    return s;
+  }
+  if (asked.sew) {
+    const std::vector<double> gaps = free_edge_gaps(s);
+    std::vector<double> tries;
+    for (double g : gaps)
+      if (g > tol && g <= 1e-2 * diag && (tries.empty() || g > 2 * tries.back())) tries.push_back(g);
+    if (tries.size() > 4) tries.erase(tries.begin(), tries.end() - 4);
+    for (double g : tries) {
+      json f = json::object();
+      const double t = 1.5 * g;
+      TopoDS_Shape r = repair(in, t, diag, asked, fuse, f, ctx, src);
+      const int n = free_edge_count(r);
+      if (n < fe) {
+        f["sewing_gap_measured"] = {{"gap", g}, {"tolerance", t}, {"free_edges_before", fe}, {"free_edges_after", n}};
+        ctx.log("heal: the free edges lie up to " + fmt(g) + " apart: sewn again with tolerance " + fmt(t) + ", " +
+                std::to_string(fe) + " -> " + std::to_string(n) + " free edge(s)");
+        s = r, fe = n, fixes = f, tol = t;
+        if (fe == 0) return s;
+      }
+    }
+  }
+  if (o.cap_holes) s = cap_planar_openings(s, tol, fixes, ctx);
+  return s;
+}
+
+// Refuses a shape that is still open or has edges shared by more than two faces, naming the
+// openings and what to do.
+void refuse_open(const TopoDS_Shape& s, const std::string& units, double tol, bool input_closed, bool caps,
+                 const std::string& src) {
+  Shape cur = cad::occt::make_shape(s, units);
+  auto fe = cur.free_edges();
+  if (!fe.empty()) {
+    Openings op = openings_of(s, tol);
+    std::string where;
+    int i = 0;
+    for (auto& w : op.closed)
+      if (i < 8) where += "\n  - " + describe_opening(w, i++, tol, true);
+    for (auto& w : op.open)
+      if (i < 8) where += "\n  - " + describe_opening(w, i++, tol, false);
+    throw StageError(src + ": the shape is not closed after sewing with tolerance " + fmt(tol) + ": " +
+                     std::to_string(fe.size()) + " free edge(s) bound only one face " +
+                     (input_closed ? "although the input was closed (healing collapsed features smaller than the tolerance):"
+                                   : "(a missing face or a gap wider than the tolerance):") +
+                     describe_edges(cur, fe) + (where.empty() ? "" : "\nThe openings:" + where) +
+                     (input_closed ? "\nLower `tolerance` (e.g. " + fmt(tol / 100) + "), or set sew, fix_small_edges and "
+                                     "fix_small_faces to false for CAD that is closed already."
+                                   : std::string("\nAdd the missing faces in the CAD") +
+                                         (caps ? " (planar openings are capped already; these are not planar or not "
+                                                 "closed loops)"
+                                               : " (or set cap_planar_holes: true to close the planar ones)") +
+                                         ", or raise `tolerance` if a gap is a modelling inaccuracy."));
+  }
+  auto me = cur.multiple_edges();
+  if (!me.empty())
+    throw StageError(src + ": " + std::to_string(me.size()) +
+                     " edge(s) are shared by more than two faces (overlapping, duplicated or T-joined faces):" +
+                     describe_edges(cur, me) + "\nRemove the extra faces in the CAD.");
+}
+
+double volume_of(const TopoDS_Shape& s) {
+  GProp_GProps g;
+  BRepGProp::VolumeProperties(s, g);
+  return g.Mass();
+}
+
+// {volume, box} of a region heal leaves out, for stats.fixes.
+json region_json(const TopoDS_Shape& s) {
+  Bnd_Box b;
+  BRepBndLib::Add(s, b);
+  double x0, y0, z0, x1, y1, z1;
+  b.Get(x0, y0, z0, x1, y1, z1);
+  return {{"volume", volume_of(s)}, {"box", {{x0, y0, z0}, {x1, y1, z1}}}};
+}
+
+// A solid lying outside `outer` (an interior point of its first face classified outside): a
+// second part beside the domain, not a body inside it.
+bool outside_of(const TopoDS_Shape& outer, const TopoDS_Shape& solid) {
+  TopExp_Explorer ex(solid, TopAbs_FACE);
+  if (!ex.More()) return false;
+  BRepClass3d_SolidClassifier c(outer, cad::occt::interior_point(TopoDS::Face(ex.Current())), 1e-9);
+  return c.State() == TopAbs_OUT;
+}
+
+// One connected fluid region: the solid with the far field (the largest; with fluid: box, the
+// one holding the box), the others (the inside of a hollow part, a pipe's bore closed off by the
+// body, the space between an assembly's parts) dropped with a note: they are voids no flow reaches.
+TopoDS_Shape one_region(const TopoDS_Shape& fluid, json& fixes, StageContext& ctx, const std::string& src) {
+  std::vector<TopoDS_Shape> so;
+  for (TopExp_Explorer ex(fluid, TopAbs_SOLID); ex.More(); ex.Next()) so.push_back(ex.Current());
+  if (so.empty()) throw StageError(src + ": building the fluid region left no solid");
+  if (so.size() == 1) return so[0];
+  std::vector<double> vol(so.size());
+  for (size_t i = 0; i < so.size(); ++i) vol[i] = volume_of(so[i]);
+  const size_t keep = std::max_element(vol.begin(), vol.end()) - vol.begin();
+  json dropped = json::array();
+  for (size_t i = 0; i < so.size(); ++i)
+    if (i != keep) dropped.push_back(region_json(so[i]));
+  fixes["enclosed_regions_dropped"] = dropped;
+  ctx.log("heal: the fluid region is made of " + std::to_string(so.size()) + " disconnected solids: the largest (volume " +
+          fmt(vol[keep]) + ") is kept, " + std::to_string(so.size() - 1) +
+          " enclosed region(s) no flow from it reaches are dropped (stats.fixes.enclosed_regions_dropped)");
+  return so[keep];
+}
+
+void run(StageContext& ctx) {
+  const auto& P = ctx.params();
+  Shape in = Shape::load(ctx.input("shape").path);
+  cad::occt::Log log([&](const std::string& s) { ctx.log(s); });
+  const std::string src = "heal stage '" + ctx.stage_name() + "'";
+
+  Bnd_Box bb;
+  BRepBndLib::Add(cad::occt::shape(in), bb);
+  const double diag = diag_of(bb);
+  const Options opt = read_options(P, cad::occt::shape(in), diag);
+  const std::string& fluid_mode = opt.fluid;
+  const std::string& tag_mode = opt.tags;
+  const std::string& symmetry_plane = opt.symmetry_plane;
+  if (symmetry_plane != "none" && fluid_mode != "box")
+    throw StageError(src + ": symmetry_plane: " + symmetry_plane + " needs fluid: box (it says which side of the body's "
+                     "far-field box lies on its root plane)");
+  auto& st = ctx.stats();
+  double tol = opt.tol;
+  json fixes = json::object();
+  const TopoDS_Shape& input = cad::occt::shape(in);
+  const Counts before = count(input, tol);
+  st["before"] = to_json(before);
+  if (in.num_faces() == 0) throw StageError(src + ": the input shape has no faces: nothing to heal");
+
+  // 1-5, until closed where that can be done without inventing geometry
+  TopoDS_Shape s = repair_closed(input, opt, diag, tol, fixes, ctx, src);
+  st["tolerance"] = tol;
   // 6. the fluid solid
   ctx.progress(0.6, "fluid solid");
-  {
-    Shape cur = cad::occt::make_shape(s, in.units());
-    auto fe = cur.free_edges();
-    // The input was closed and healing opened it: the tolerance is too coarse for the body's
-    // small features (sewing or the small-entity fixes collapsed them). Else a gap in the input.
-    const bool opened = st["before"]["free_edges"] == 0 && st["before"]["solids"].get<int>() > 0;
-    if (!fe.empty())
-      throw StageError(src + ": the shape is not closed after sewing with tolerance " + fmt(tol) + ": " +
-                       std::to_string(fe.size()) + " free edge(s) bound only one face " +
-                       (opened ? "although the input was closed (healing collapsed features smaller than the tolerance):"
-                               : "(a missing face or a gap wider than the tolerance):") +
-                       describe_edges(cur, fe) +
-                       (opened ? "\nLower `tolerance` (e.g. " + fmt(tol / 100) + "), or set sew, fix_small_edges and "
-                                 "fix_small_faces to false for CAD that is closed already."
-                               : "\nAdd the missing face in the CAD, or raise `tolerance` if the gap is a modelling "
-                                 "inaccuracy."));
-    auto me = cur.multiple_edges();
-    if (!me.empty())
-      throw StageError(src + ": " + std::to_string(me.size()) +
-                       " edge(s) are shared by more than two faces (overlapping, duplicated or T-joined faces):" +
-                       describe_edges(cur, me) + "\nRemove the extra faces in the CAD.");
-  }
+  refuse_open(s, in.units(), tol, before.free_edges == 0 && before.solids > 0, opt.cap_holes, src);
   std::vector<TopoDS_Solid> solids;
   for (TopExp_Explorer ex(s, TopAbs_SOLID); ex.More(); ex.Next()) solids.push_back(TopoDS::Solid(ex.Current()));
   if (solids.empty())
@@ -503,7 +788,19 @@ void run(StageContext& ctx) {
       TopoDS_Compound inner;
       BRep_Builder b;
       b.MakeCompound(inner);
-      for (size_t i = 1; i < solids.size(); ++i) b.Add(inner, solids[i]);
+      json outside = json::array();
+      for (size_t i = 1; i < solids.size(); ++i) {
+        if (outside_of(solids[0], solids[i])) {
+          outside.push_back(region_json(solids[i]));
+          continue;
+        }
+        b.Add(inner, solids[i]);
+      }
+      if (!outside.empty()) {
+        fixes["regions_outside_dropped"] = outside;
+        ctx.log("heal: " + std::to_string(outside.size()) + " closed shell(s) lie outside the largest one: no part of "
+                "its fluid, dropped (stats.fixes.regions_outside_dropped)");
+      }
       BRepAlgoAPI_Cut cut(solids[0], inner);
       if (!cut.IsDone() || cut.HasErrors())
         throw StageError(src + ": the input has " + std::to_string(solids.size()) +
@@ -513,7 +810,7 @@ void run(StageContext& ctx) {
       fixes["fluid"] = "outer shell minus " + std::to_string(solids.size() - 1) + " inner shell(s)";
     }
     // 7. unify
-    if (unify) {
+    if (opt.unify) {
       ctx.progress(0.75, "unify");
       int before = count(fluid, tol).faces;
       ShapeUpgrade_UnifySameDomain un(fluid, Standard_True, Standard_True, Standard_False);
@@ -533,14 +830,7 @@ void run(StageContext& ctx) {
   } catch (const Standard_Failure& e) {
     throw StageError(src + ": OpenCASCADE failed building the fluid solid (" + e.GetMessageString() + ")");
   }
-  {  // a single solid
-    std::vector<TopoDS_Shape> so;
-    for (TopExp_Explorer ex(fluid, TopAbs_SOLID); ex.More(); ex.Next()) so.push_back(ex.Current());
-    if (so.size() != 1)
-      throw StageError(src + ": the fluid region is made of " + std::to_string(so.size()) +
-                       " disconnected solids; a mesh needs one connected fluid domain (is a body outside the far field?)");
-    fluid = so[0];
-  }
+  fluid = one_region(fluid, fixes, ctx, src);
 
   // 8. checks
   ctx.progress(0.85, "checking");
@@ -556,6 +846,7 @@ void run(StageContext& ctx) {
       for (auto& t : tags)
         if (t == Tag::symmetry && !keep_symmetry) t = Tag::farfield;
     outer_shell_farfield(fluid, tags);
+    if (!body_in_box) curved_farfield_tags(fluid, tags, 1e-6 * diag);
   } else {
     tags = cad::occt::transfer_tags(in, fluid, std::max(10 * tol, 1e-7 * diag));
     if (body_in_box) {  // new box faces
@@ -579,11 +870,11 @@ void run(StageContext& ctx) {
   auto fe = out.free_edges(), me = out.multiple_edges();
   if (!fe.empty() || !me.empty())
     throw StageError(src + ": the fluid solid is not watertight:" + describe_edges(out, fe.empty() ? me : fe));
-  if (check_si) {
+  if (opt.check_si) {
     ctx.progress(0.9, "self-intersection");
     SelfInterference si;
     try {
-      si = self_interference(out, si_level, ctx.threads() > 1);
+      si = self_interference(out, opt.si_level, ctx.threads() > 1);
     } catch (const Standard_Failure& e) {
       throw StageError(src + ": OpenCASCADE failed checking the fluid solid for self-intersections (" +
                        e.GetMessageString() + "); set check_self_intersection: off to skip the check");
@@ -618,16 +909,16 @@ void run(StageContext& ctx) {
   for (int f = 0; f < out.num_faces(); ++f) {
     double a = out.face_area(f), per = perimeter(out.impl().face(f));
     double width = per > 0 ? 2 * a / per : 0;
-    if (width < tol) {
+    if (width < std::min(tol, opt.tol)) {
       slivers.push_back(f);
       sliver_msg += "\n  - " + cad::occt::describe_face(out, f) + ": width about " + fmt(width);
     }
   }
   if (!slivers.empty())
     throw StageError(src + ": " + std::to_string(slivers.size()) + " face(s) are narrower than the tolerance " + fmt(tol) +
-                     " (slivers that cannot be meshed)" + (small_faces ? " and fix_small_faces could not remove them:" : ":") +
+                     " (slivers that cannot be meshed)" + (opt.small_faces ? " and fix_small_faces could not remove them:" : ":") +
                      sliver_msg + "\nMerge or remove them in the CAD" +
-                     (small_faces ? std::string(".") : std::string(", or set fix_small_faces: true.")));
+                     (opt.small_faces ? std::string(".") : std::string(", or set fix_small_faces: true.")));
   cad::apply_tag_rules(out, P.at("tag_overrides"), src);
   for (int f = 0; f < out.num_faces(); ++f) tags[f] = out.face_tag(f);
   if (tags.end() != std::find(tags.begin(), tags.end(), Tag::none)) {
@@ -653,7 +944,7 @@ void run(StageContext& ctx) {
 }
 
 StageRegistrar reg({.kind = "heal",
-                    .version = 3,  // 3: also writes the CAD reference of the mesh contract
+                    .version = 4,  // 3: also writes the CAD reference of the mesh contract; 4: lowers a tolerance that opens a closed input, sews at measured gaps, caps planar openings, tags a curved far field, drops enclosed regions
                     .summary = "sew, fix and close the CAD into a watertight fluid solid; refuse what cannot be repaired",
                     .libraries = {"OCCT " OCC_VERSION_COMPLETE},
                     .needs = {"shape"},

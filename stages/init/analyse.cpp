@@ -1,6 +1,8 @@
 // `meshflow init`'s measurements of a CAD file: body or domain, walls, length scales, curvature.
 #include "stages/init/init.hpp"
 
+#include "stages/cad/domain_rules.hpp"
+
 #include "engine/stage.hpp"
 
 #include <algorithm>
@@ -21,40 +23,12 @@ namespace {
 using cad::Box;
 using cad::Shape;
 using cad::Vec3;
+using cad::box_sides;
 
 double side(const Box& b, int k) { return b.hi[k] - b.lo[k]; }
 double largest_side(const Box& b) { return std::max({side(b, 0), side(b, 1), side(b, 2)}); }
 double smallest_side(const Box& b) { return std::min({side(b, 0), side(b, 1), side(b, 2)}); }
 double distance(const Vec3& a, const Vec3& b) { return std::hypot(a.x - b.x, a.y - b.y, a.z - b.z); }
-
-// Corners of the bounding box that are vertices of the shape: a tunnel or channel (a box with
-// the body cut out of it) has all eight; a body has its box's corners in the air.
-int box_corners(const Shape& s, const Box& b, double tol) {
-  int n = 0;
-  for (int c = 0; c < 8; ++c) {
-    Vec3 p{c & 1 ? b.hi.x : b.lo.x, c & 2 ? b.hi.y : b.lo.y, c & 4 ? b.hi.z : b.lo.z};
-    for (int v = 0; v < s.num_vertices(); ++v)
-      if (distance(s.vertex_point(v), p) <= tol + s.vertex_tolerance(v)) {
-        ++n;
-        break;
-      }
-  }
-  return n;
-}
-
-// The sides of the box (axis k, hi 0 or 1) on whose plane a planar face lies: heal's box rule
-// makes such a face farfield or symmetry; a body's such faces may be a half model's root.
-std::vector<std::pair<int, int>> box_sides(const Shape& s, int f, const Box& b, double tol) {
-  std::vector<std::pair<int, int>> sides;
-  if (s.face_surface_type(f) != "plane") return sides;
-  Box fb = s.face_box(f);
-  for (int k = 0; k < 3; ++k) {
-    if (side(fb, k) > 2 * tol) continue;
-    for (int hi = 0; hi < 2; ++hi)
-      if (std::abs((hi ? fb.hi[k] : fb.lo[k]) - (hi ? b.hi[k] : b.lo[k])) <= 2 * tol) sides.push_back({k, hi});
-  }
-  return sides;
-}
 
 // A solid with more shells than solids: inner shells, holes in the fluid.
 bool has_voids(const Analysis& a) { return a.solids > 0 && a.shells > a.solids; }
@@ -84,7 +58,8 @@ std::vector<char> outer_shell(const Shape& s, const Box& b, double tol) {
 
 // The body-or-domain rule, with the figures it used.
 void classify(const Shape& s, Analysis& a, double tol) {
-  a.corners = box_corners(s, a.box, tol);
+  a.corners = cad::box_corner_vertices(s, a.box, tol);
+  const std::vector<int> cut = cad::cut_box_faces(s, a.box, tol);
   if (has_voids(a)) {
     a.domain = true;
     a.why = std::to_string(a.solids) + " solid(s) with " + std::to_string(a.shells) +
@@ -93,11 +68,35 @@ void classify(const Shape& s, Analysis& a, double tol) {
     a.domain = true;
     a.why = "all 8 corners of its bounding box are vertices and it has " + std::to_string(a.faces) +
             " faces: a box-shaped tunnel or channel with the body cut out of it, so the file is the fluid domain";
+  } else if (!cut.empty()) {
+    a.domain = true;
+    a.why = "face " + std::to_string(cut[0]) + (cut.size() > 1 ? " (and " + std::to_string(cut.size() - 1) + " more)" : "") +
+            " lies on a plane of its bounding box and has a hole bounded by faces off that plane: a symmetry plane or "
+            "tunnel wall with a body cut into it, which only the fluid around a body has, so the file is the fluid domain";
   } else {
     a.domain = false;
-    a.why = std::to_string(a.corners) + " of the 8 corners of its bounding box are vertices and it has no inner shell: a "
-            "body, meshed in a far-field box around it";
+    a.why = std::to_string(a.corners) + " of the 8 corners of its bounding box are vertices, no face on its box has a "
+            "body cut into it and it has no inner shell: a body, meshed in a far-field box around it";
   }
+}
+
+// A solid with inner shells whose every face connects to its outer shell has no separate body
+// inside: the shells are cavities of a body (an airliner's tanks, a loose surface), not holes in
+// a fluid. It is read as a body; heal drops the enclosed cavities.
+void body_with_cavities(Analysis& a) {
+  a.domain = false;
+  a.why = std::to_string(a.solids) + " solid(s) with " + std::to_string(a.shells) +
+          " shells, but every face connects to the outer shell (no body lies inside it): a body with enclosed "
+          "cavities, meshed in a far-field box around it (heal drops the cavities)";
+}
+
+// A length unit whose figures make an implausible object: a declared mm (or inch) with a whole
+// model under a millimetre is a file in metres written as mm; a declared m with a model over a
+// kilometre is one in mm written as m. Empty when the size is plausible.
+std::string likely_units(const std::string& declared, double extent) {
+  if ((declared == "mm" || declared == "in" || declared == "inch") && extent < 1) return "m";
+  if (declared == "m" && extent > 2000) return "mm";
+  return "";
 }
 
 // Smallest radius of curvature over a grid of points inside each wall face (both principal
@@ -166,6 +165,18 @@ void find_root_plane(const Shape& s, Analysis& a, double tol) {
   }
 }
 
+// The faces that will be walls: all of a body's; of a domain, those off its box's planes, not on
+// its outer shell when it has holes, and not its curved far field when a body is cut into it.
+void find_walls(const Shape& s, Analysis& a, double tol) {
+  a.walls.clear();
+  const std::vector<char> outer = a.domain && has_voids(a) ? outer_shell(s, a.box, tol) : std::vector<char>(a.faces, 0);
+  std::vector<char> far(a.faces, 0);
+  if (a.domain && !has_voids(a) && a.corners < 8)
+    for (int f : cad::curved_farfield(s, a.box, tol)) far[f] = 1;
+  for (int f = 0; f < a.faces; ++f)
+    if (!a.domain || (box_sides(s, f, a.box, tol).empty() && !outer[f] && !far[f])) a.walls.push_back(f);
+}
+
 }  // namespace
 
 Analysis analyse(const Shape& s) {
@@ -179,12 +190,17 @@ Analysis analyse(const Shape& s) {
   a.extent = largest_side(a.box);
   const double tol = 1e-6 * std::hypot(side(a.box, 0), side(a.box, 1), side(a.box, 2));
   classify(s, a, tol);
-  // a domain's walls: not on its box's planes, and not its outer shell when it has holes
-  const std::vector<char> outer = a.domain && has_voids(a) ? outer_shell(s, a.box, tol) : std::vector<char>(a.faces, 0);
-  for (int f = 0; f < a.faces; ++f)
-    if (!a.domain || (box_sides(s, f, a.box, tol).empty() && !outer[f])) a.walls.push_back(f);
+  find_walls(s, a, tol);
+  if (a.walls.empty() && a.domain && has_voids(a)) {
+    body_with_cavities(a);
+    find_walls(s, a, tol);
+  }
   if (a.walls.empty())
     throw StageError("every face of the domain lies on its bounding box: there is no body to put a boundary layer on");
+  a.likely_units = likely_units(a.units, a.extent);
+  if (!a.likely_units.empty())
+    a.units_note = "the file declares " + a.units + " but its largest side is " + fmt(a.extent) + " " + a.units +
+                   ": likely " + a.likely_units + " (rerun with --units " + a.likely_units + " if so; meshing is the same, the figures' unit changes)";
   a.wall_box = s.face_box(a.walls[0]);
   for (int f : a.walls) {
     Box b = s.face_box(f);

@@ -12,6 +12,8 @@ namespace meshflow::init {
 
 struct Analysis {
   std::string units;
+  std::string likely_units;  // non-empty: the declared unit gives an implausible size; this one fits
+  std::string units_note;    // why, for the workflow's header and init's output
   int solids = 0, shells = 0, faces = 0;
   cad::Box box;        // the whole shape
   double extent = 0;   // largest side of `box`

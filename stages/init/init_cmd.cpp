@@ -119,6 +119,7 @@ std::string workflow_text(const Options& o, const Analysis& a, const Choices& c)
     << a.solids << " solid(s), " << a.shells << " shell(s), " << a.faces << " faces, in " << u << ".\n"
     << "# Bounding box (" << fmt(a.box.lo.x) << ", " << fmt(a.box.lo.y) << ", " << fmt(a.box.lo.z) << ") - ("
     << fmt(a.box.hi.x) << ", " << fmt(a.box.hi.y) << ", " << fmt(a.box.hi.z) << ").\n"
+    << (a.units_note.empty() || !o.units.empty() ? std::string() : "# Units: " + a.units_note + ".\n")
     << "# Every choice below says what it came from; change any value and `meshflow run` reruns only\n"
     << "# the stages it affects. `meshflow run --set STAGE.PARAM=VALUE` tries a value without editing.\n"
     << "meshflow: 1\n"
@@ -295,7 +296,9 @@ int init_cmd(const std::vector<std::string>& args) {
   if (int rc = write_workflow(o, workflow_text(o, a, c))) return rc;
   std::cout << "wrote " << o.out.string() << ": " << (a.domain ? "a fluid domain" : "a body in a far-field box") << ", "
             << a.walls.size() << " wall face(s), layer " << fmt(c.thickness) << " " << a.units << ", order " << o.order
-            << ", " << o.layers << " layers\nrun it: meshflow run " << o.out.string() << "\n";
+            << ", " << o.layers << " layers\n"
+            << (a.units_note.empty() || !o.units.empty() ? std::string() : "note: " + a.units_note + "\n")
+            << "run it: meshflow run " << o.out.string() << "\n";
   return 0;
 }
 

@@ -62,25 +62,32 @@ TEST_CASE("heal: the paper's wing STEP becomes a watertight fluid solid with the
   }
 }
 
-TEST_CASE("heal: sewfaces.step (open box bottom) is refused naming the 6 free edges") {
+TEST_CASE("heal: sewfaces.step (open box bottom) gets its planar opening capped, and with caps off it is refused naming the 6 free edges") {
   fs::path f = data / "cad-defects/sewfaces.step";
   if (!fs::exists(f)) return;
   auto imp = import(f);
   CHECK(imp->stats_["faces"] == 22);
   CHECK(imp->stats_["free_edges"] == 14);
-  TestContext h("heal", nlohmann::json::object(), {imp->artifact("shape")});
+  TestContext capped("heal", nlohmann::json::object(), {imp->artifact("shape")});
+  capped.run();
+  CHECK(Shape::load(capped.artifact("shape").path).watertight());
+  auto caps = capped.stats_["fixes"]["planar_holes_capped"];
+  REQUIRE(caps.size() == 1);
+  CHECK(caps[0]["edges"].get<std::string>().find("6 free edge(s)") != std::string::npos);
+  TestContext h("heal", nlohmann::json{{"cap_planar_holes", false}}, {imp->artifact("shape")});
   try {
     h.run();
-    FAIL("sewfaces.step must be refused");
+    FAIL("sewfaces.step must be refused with cap_planar_holes: false");
   } catch (const StageError& e) {
     std::string m = e.what();
     CHECK(m.find("heal stage 'heal'") != std::string::npos);
     CHECK(m.find("6 free edge(s)") != std::string::npos);
     CHECK(m.find("edge 10 from (5, 0, 0) to (10, 0, 0)") != std::string::npos);
-    CHECK(m.find("Add the missing face") != std::string::npos);
+    CHECK(m.find("Add the missing faces") != std::string::npos);
+    CHECK(m.find("planar") != std::string::npos);
   }
   // a larger tolerance does not invent the missing face
-  TestContext h2("heal", nlohmann::json{{"tolerance", 0.5}}, {imp->artifact("shape")});
+  TestContext h2("heal", nlohmann::json{{"tolerance", 0.5}, {"cap_planar_holes", false}}, {imp->artifact("shape")});
   CHECK_THROWS_WITH_AS(h2.run(), doctest::Contains("6 free edge(s)"), StageError);
 }
 

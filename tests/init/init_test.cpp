@@ -8,7 +8,11 @@
 
 #include <nlohmann/json.hpp>
 
+#include <BRepAlgoAPI_Common.hxx>
 #include <BRepAlgoAPI_Cut.hxx>
+#include <BRep_Builder.hxx>
+#include <TopExp_Explorer.hxx>
+#include <TopoDS_Compound.hxx>
 #include <BRepPrimAPI_MakeBox.hxx>
 #include <BRepPrimAPI_MakeSphere.hxx>
 #include <BRepTools.hxx>
@@ -89,6 +93,59 @@ TEST_CASE("init: a thin body in a far-field sphere 100 times its size runs to a 
   MESSAGE("far-field sphere: " << got << " triangles, " << asked << " asked for");
   CHECK(got < 2 * asked);
   CHECK(got > 0.5 * asked);
+}
+
+TEST_CASE("init: a half sphere with a half body cut into its flat face is the domain: the body walls, the sphere not") {
+  fs::path dir = mftest::temp_dir("init-half-domain");
+  TopoDS_Shape half = BRepAlgoAPI_Common(BRepPrimAPI_MakeSphere(gp_Pnt(0, 0, 0), 10).Shape(),
+                                         BRepPrimAPI_MakeBox(gp_Pnt(-20, -20, 0), 40, 40, 20).Shape()).Shape();
+  TopoDS_Shape domain = BRepAlgoAPI_Cut(half, BRepPrimAPI_MakeBox(gp_Pnt(0, -0.1, -1), 1, 0.2, 3).Shape()).Shape();
+  REQUIRE(BRepTools::Write(domain, (dir / "half.brep").c_str()));
+  auto a = analysed(dir / "half.brep");
+  CHECK(a.domain);
+  CHECK(a.why.find("body cut into it") != std::string::npos);
+  CHECK(a.walls.size() == 5);
+  CHECK(a.wall_max == doctest::Approx(2).epsilon(1e-3));
+  // the same half sphere with no body cut into it is a body (a dome), not a domain
+  REQUIRE(BRepTools::Write(half, (dir / "dome.brep").c_str()));
+  CHECK(!analysed(dir / "dome.brep").domain);
+}
+
+TEST_CASE("init: a solid whose extra shell lies on its outer boundary is a body with cavities, not a domain without walls") {
+  fs::path dir = mftest::temp_dir("init-cavities");
+  TopoDS_Shape box = BRepPrimAPI_MakeBox(gp_Pnt(0, 0, 0), 1, 2, 3).Shape();
+  TopoDS_Shape copy = BRepPrimAPI_MakeBox(gp_Pnt(0, 0, 0), 1, 2, 3).Shape();
+  TopoDS_Compound c;
+  BRep_Builder b;
+  b.MakeCompound(c);
+  b.Add(c, box);
+  for (TopExp_Explorer ex(copy, TopAbs_SHELL); ex.More(); ex.Next()) b.Add(c, ex.Current());  // a loose shell
+  REQUIRE(BRepTools::Write(c, (dir / "body.brep").c_str()));
+  auto a = analysed(dir / "body.brep");
+  CHECK(a.shells > a.solids);
+  CHECK(!a.domain);
+  CHECK(a.why.find("cavities") != std::string::npos);
+  CHECK(!a.walls.empty());
+}
+
+TEST_CASE("init: a declared unit whose figures give an implausible size is reported with the likely unit") {
+  fs::path dir = mftest::temp_dir("init-units");
+  REQUIRE(BRepTools::Write(BRepPrimAPI_MakeSphere(gp_Pnt(0, 0, 0), 0.2).Shape(), (dir / "ball.brep").c_str()));
+  // a BREP carries no unit: mm unless told; a 0.4 mm ball is likely a 0.4 m one
+  auto a = analysed(dir / "ball.brep");
+  CHECK(a.units == "mm");
+  CHECK(a.likely_units == "m");
+  auto init = mftest::run_cli({"init", (dir / "ball.brep").string(), "-o", (dir / "ball.yaml").string()});
+  CHECK(init.code == 0);
+  CHECK(init.out.find("likely m") != std::string::npos);
+  CHECK(mftest::sh("grep -c '# Units: the file declares mm' " + (dir / "ball.yaml").string()).out.find("1") == 0);
+  // --units m: nothing to report
+  auto given = mftest::run_cli({"init", (dir / "ball.brep").string(), "-o", (dir / "ball_m.yaml").string(), "--units", "m"});
+  CHECK(given.code == 0);
+  CHECK(given.out.find("likely") == std::string::npos);
+  // a plausible size: no note
+  REQUIRE(BRepTools::Write(BRepPrimAPI_MakeSphere(gp_Pnt(0, 0, 0), 200).Shape(), (dir / "big.brep").c_str()));
+  CHECK(analysed(dir / "big.brep").likely_units.empty());
 }
 
 TEST_CASE("init: a body standing on one side of its box is a half model on that plane, equal ends are not") {
