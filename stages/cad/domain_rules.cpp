@@ -35,6 +35,18 @@ int box_corner_vertices(const Shape& s, const Box& b, double tol) {
   return n;
 }
 
+std::array<double, 6> box_side_coverage(const Shape& s, const Box& b, double tol) {
+  std::array<double, 6> area{};
+  for (int f = 0; f < s.num_faces(); ++f)
+    for (auto [k, hi] : box_sides(s, f, b, tol)) area[2 * k + hi] += s.face_area(f);
+  for (int k = 0; k < 3; ++k)
+    for (int hi = 0; hi < 2; ++hi) {
+      const double side_area = side(b, (k + 1) % 3) * side(b, (k + 2) % 3);
+      area[2 * k + hi] = side_area > 0 ? area[2 * k + hi] / side_area : 0;
+    }
+  return area;
+}
+
 std::vector<int> cut_box_faces(const Shape& s, const Box& b, double tol) {
   std::vector<char> on_box(s.num_faces(), 0);
   for (int f = 0; f < s.num_faces(); ++f) on_box[f] = !box_sides(s, f, b, tol).empty();

@@ -5,6 +5,7 @@
 
 #include "stages/cad/cad.hpp"
 
+#include <array>
 #include <utility>
 #include <vector>
 
@@ -15,6 +16,11 @@ std::vector<std::pair<int, int>> box_sides(const Shape& s, int f, const Box& b, 
 
 // Corners of `b` that are vertices of the shape (8: a box-shaped tunnel or channel).
 int box_corner_vertices(const Shape& s, const Box& b, double tol);
+
+// Per side of `b` (index 2k + hi), the share of its area that planar faces lying on it cover:
+// a tunnel's or channel's walls cover each side whole (0.99 and more on every tunnel seen), a
+// machined block's steps and pockets leave most of its sides open (0.1 to 0.8).
+std::array<double, 6> box_side_coverage(const Shape& s, const Box& b, double tol);
 
 // Planar faces on a plane of `b` that have a hole (an inner wire) bounded by faces off the box
 // planes: a tunnel wall or a symmetry plane with a body cut into it (a half model's root, a

@@ -56,27 +56,48 @@ std::vector<char> outer_shell(const Shape& s, const Box& b, double tol) {
   return outer;
 }
 
-// The body-or-domain rule, with the figures it used.
+// The body-or-domain rule, with the figures it used. A tunnel or channel covers each side of its
+// box with its walls (a machined block with 8 corners on its box does not: its steps and pockets
+// leave the sides open); a body cut into a symmetry plane leaves that plane mostly whole and its
+// walls a small part of the domain's surface (a pocket milled into a part does not).
 void classify(const Shape& s, Analysis& a, double tol) {
   a.corners = cad::box_corner_vertices(s, a.box, tol);
-  const std::vector<int> cut = cad::cut_box_faces(s, a.box, tol);
+  const auto cover = cad::box_side_coverage(s, a.box, tol);
+  const double least_cover = *std::min_element(cover.begin(), cover.end());
+  double area = 0, off_box = 0;
+  std::vector<char> far(a.faces, 0);
+  for (int f : cad::curved_farfield(s, a.box, tol)) far[f] = 1;
+  for (int f = 0; f < a.faces; ++f) {
+    double fa = s.face_area(f);
+    area += fa;
+    if (box_sides(s, f, a.box, tol).empty() && !far[f]) off_box += fa;
+  }
+  const double wall_share = area > 0 ? off_box / area : 1;
+  std::vector<int> cut;
+  for (int f : cad::cut_box_faces(s, a.box, tol))
+    for (auto [k, hi] : box_sides(s, f, a.box, tol))
+      if (cover[2 * k + hi] >= 0.5 && wall_share < 0.5) cut.push_back(f);
   if (has_voids(a)) {
     a.domain = true;
     a.why = std::to_string(a.solids) + " solid(s) with " + std::to_string(a.shells) +
             " shells: the inner shells are holes in the fluid, so the file is the fluid domain";
-  } else if (a.corners == 8 && a.faces > 6) {
+  } else if (a.corners == 8 && a.faces > 6 && least_cover >= 0.9) {
     a.domain = true;
-    a.why = "all 8 corners of its bounding box are vertices and it has " + std::to_string(a.faces) +
+    a.why = "all 8 corners of its bounding box are vertices, its planar faces cover every side of the box (at least " +
+            fmt(100 * least_cover) + " %) and it has " + std::to_string(a.faces) +
             " faces: a box-shaped tunnel or channel with the body cut out of it, so the file is the fluid domain";
   } else if (!cut.empty()) {
     a.domain = true;
     a.why = "face " + std::to_string(cut[0]) + (cut.size() > 1 ? " (and " + std::to_string(cut.size() - 1) + " more)" : "") +
-            " lies on a plane of its bounding box and has a hole bounded by faces off that plane: a symmetry plane or "
-            "tunnel wall with a body cut into it, which only the fluid around a body has, so the file is the fluid domain";
+            " lies on a plane of its bounding box and has a hole bounded by faces off that plane, which (but for a curved far "
+            "field) make " +
+            fmt(100 * wall_share) + " % of its area: a symmetry plane or tunnel wall with a body cut into it, which only "
+            "the fluid around a body has, so the file is the fluid domain";
   } else {
     a.domain = false;
-    a.why = std::to_string(a.corners) + " of the 8 corners of its bounding box are vertices, no face on its box has a "
-            "body cut into it and it has no inner shell: a body, meshed in a far-field box around it";
+    a.why = std::to_string(a.corners) + " of the 8 corners of its bounding box are vertices (its planar faces cover " +
+            fmt(100 * least_cover) + " % of its least covered side), no face on its box has a body cut into it and it "
+            "has no inner shell: a body, meshed in a far-field box around it";
   }
 }
 
