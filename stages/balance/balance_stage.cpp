@@ -43,6 +43,7 @@ struct CadEdgeTable {
   double length = 0, target = 0;
   double width = INFINITY;  // of the faces across the edge (width_across), when finite
   int min_n = 1;            // divisions the width asks for at least (balance.hpp, "Targets")
+  bool width_capped = false;  // the width asked for more than kWidthCap x the target
 };
 
 // The least distance from edge e to the other edges of its faces that share no vertex with it,
@@ -78,6 +79,7 @@ double width_across(const cad::Shape& shape, int e, double limit) {
   return w < limit ? w : INFINITY;
 }
 constexpr double kWidthSag = 0.25;  // chord sag allowed, x the width of the faces across an edge
+constexpr double kWidthCap = 8;     // the width's minimum divisions, at most this x the edge's target
 
 CadEdgeTable tabulate(const cad::Shape& shape, int e, const Sizing& S) {
   CadEdgeTable T;
@@ -127,7 +129,14 @@ CadEdgeTable tabulate(const cad::Shape& shape, int e, const Sizing& S) {
     }
   }
   T.length = s, T.target = n;
-  T.min_n = std::max(1, static_cast<int>(std::ceil(nw - 1e-9)));
+  // A width that all but vanishes (two edges of a face touching at a point: a machined part's
+  // tangent fillet meets its neighbour's rim) would ask for millions of divisions (the angled
+  // base clamp: 1.5e7 on one edge, 195 M in all, 11 GB before sweep); the bound holds where the
+  // face is narrow along the edge (the DLR-F6 nacelle ring asks for a few times its target), so
+  // it is capped at kWidthCap times the target.
+  const double cap = kWidthCap * std::max(1.0, std::ceil(n));
+  T.width_capped = nw > cap;
+  T.min_n = std::max(1, static_cast<int>(std::ceil(std::min(nw, cap) - 1e-9)));
   return T;
 }
 
@@ -320,7 +329,8 @@ class Stage {
     cst["total"] = prob.groups.size();
     nlohmann::json wl = nlohmann::json::array();  // wall edges the width of their faces gave a minimum
     for (auto& [e, T] : tables)
-      if (T.min_n > 1) wl.push_back({{"edge", e}, {"width", T.width}, {"min_divisions", T.min_n}});
+      if (T.min_n > 1)
+        wl.push_back({{"edge", e}, {"width", T.width}, {"min_divisions", T.min_n}, {"capped", T.width_capped}});
     nlohmann::json st = {{"edges", prob.edges.size()},
                          {"constraints", cst},
                          {"total_divisions", total},
@@ -506,7 +516,7 @@ void run(StageContext& ctx) {
 }
 
 StageRegistrar reg({.kind = "balance",
-                    .version = 2,
+                    .version = 3,  // 3: the width minimum capped at 8 x the target (width_limited_edges[].capped)
                     .summary = "interval assignment (integer program, lp_solve): divisions per block edge from the turn-angle sizing, equal/periodic/parity constraints",
                     .libraries = {lp_solve_version()},
                     .needs = {"shape", "shell"},

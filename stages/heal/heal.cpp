@@ -514,7 +514,7 @@ struct Openings {
   std::vector<TopoDS_Wire> closed, open;
 };
 Openings openings_of(const TopoDS_Shape& s, double tol) {
-  ShapeAnalysis_FreeBounds fb(s, tol, Standard_False, Standard_False);
+  ShapeAnalysis_FreeBounds fb(s, tol, Standard_True, Standard_True);  // closed sub-loops split out of longer chains
   Openings o;
   for (TopExp_Explorer ex(fb.GetClosedWires(), TopAbs_WIRE); ex.More(); ex.Next()) o.closed.push_back(TopoDS::Wire(ex.Current()));
   for (TopExp_Explorer ex(fb.GetOpenWires(), TopAbs_WIRE); ex.More(); ex.Next()) o.open.push_back(TopoDS::Wire(ex.Current()));
