@@ -79,7 +79,8 @@ double width_across(const cad::Shape& shape, int e, double limit) {
   return w < limit ? w : INFINITY;
 }
 constexpr double kWidthSag = 0.25;  // chord sag allowed, x the width of the faces across an edge
-constexpr double kWidthCap = 8;     // the width's minimum divisions, at most this x the edge's target
+constexpr double kWidthCap = 32;    // the width's minimum divisions, at most this x the edge's target
+constexpr double kWidthCapLeast = 256;  // ... or this many, the larger (a pipe coupling's chamfer asks 126 for 13)
 
 CadEdgeTable tabulate(const cad::Shape& shape, int e, const Sizing& S) {
   CadEdgeTable T;
@@ -132,9 +133,10 @@ CadEdgeTable tabulate(const cad::Shape& shape, int e, const Sizing& S) {
   // A width that all but vanishes (two edges of a face touching at a point: a machined part's
   // tangent fillet meets its neighbour's rim) would ask for millions of divisions (the angled
   // base clamp: 1.5e7 on one edge, 195 M in all, 11 GB before sweep); the bound holds where the
-  // face is narrow along the edge (the DLR-F6 nacelle ring asks for a few times its target), so
-  // it is capped at kWidthCap times the target.
-  const double cap = kWidthCap * std::max(1.0, std::ceil(n));
+  // face is narrow along the edge (the DLR-F6 nacelle ring asks for a few times its target, a
+  // pipe coupling's 0.01 wide chamfer 126 for a target of 13), so it is capped at kWidthCap
+  // times the target or kWidthCapLeast, the larger.
+  const double cap = std::max(kWidthCapLeast, kWidthCap * std::max(1.0, std::ceil(n)));
   T.width_capped = nw > cap;
   T.min_n = std::max(1, static_cast<int>(std::ceil(std::min(nw, cap) - 1e-9)));
   return T;
@@ -516,7 +518,7 @@ void run(StageContext& ctx) {
 }
 
 StageRegistrar reg({.kind = "balance",
-                    .version = 3,  // 3: the width minimum capped at 8 x the target (width_limited_edges[].capped)
+                    .version = 3,  // 3: the width minimum capped at max(256, 32 x the target) (width_limited_edges[].capped)
                     .summary = "interval assignment (integer program, lp_solve): divisions per block edge from the turn-angle sizing, equal/periodic/parity constraints",
                     .libraries = {lp_solve_version()},
                     .needs = {"shape", "shell"},

@@ -17,6 +17,7 @@
 #include <map>
 #include <numeric>
 #include <regex>
+#include <set>
 #include <sstream>
 
 namespace meshflow::tet {
@@ -90,6 +91,7 @@ class Builder {
     match_faces();
     make_pyramids();
     boundary_facets();
+    lower_crossing_pyramids();
     check_closed();
     holes();
     build_plc();
@@ -348,6 +350,57 @@ class Builder {
     rep_.pyramids = pyramids_.size();
   }
 
+  // Pairs of facets that cross (sharing no vertex), in the output mesh's nodes.
+  shell::IntersectionReport facet_crossings() const {
+    std::vector<std::int32_t> idx(out_.x.size(), -1);
+    std::vector<shell::Vec3> pts;
+    std::vector<std::array<std::int32_t, 3>> tris(facets_.size());
+    for (std::size_t f = 0; f < facets_.size(); ++f)
+      for (int k = 0; k < 3; ++k) {
+        std::uint32_t v = facets_[f].v[k];
+        if (idx[v] < 0) idx[v] = static_cast<std::int32_t>(pts.size()), pts.push_back({out_.x[v], out_.y[v], out_.z[v]});
+        tris[f][k] = idx[v];
+      }
+    return shell::self_intersections(pts, tris, opt_.threads);
+  }
+
+  // A pyramid whose sides cross another facet (a junction hex's quad next to a symmetry plane:
+  // its apex pokes through the plane; two junctions' pyramids meeting at a concave corner) has
+  // its apex lowered halfway to its base, up to 5 times (pyramid_height / 32), each round
+  // checked again: TetGen is never handed a surface that crosses itself on their account
+  // (TetGen 1.5 dies with signal 11 on some). A pyramid lowering would invert is left.
+  void lower_crossing_pyramids() {
+    if (pyramids_.empty()) return;
+    std::map<std::uint32_t, std::size_t> by_apex;
+    for (std::size_t i = 0; i < pyramids_.size(); ++i) by_apex[pyramids_[i][4]] = i;
+    std::set<std::size_t> lowered;
+    for (int round = 0; round < 5; ++round) {
+      auto rep = facet_crossings();
+      std::set<std::size_t> hit;
+      for (auto& pr : rep.all)
+        for (int f : pr)
+          if (facets_[f].kind == Facet::PyramidSide) hit.insert(by_apex.at(facets_[f].v[2]));
+      if (hit.empty()) break;
+      for (std::size_t i : hit) {
+        const auto& py = pyramids_[i];
+        P3 c = 0.25 * (node(py[0]) + node(py[1]) + node(py[2]) + node(py[3])), a = node(py[4]);
+        P3 lower = c + 0.5 * (a - c);
+        double X[15];
+        for (int k = 0; k < 4; ++k) {
+          P3 q = node(py[k]);
+          X[3 * k] = q.x, X[3 * k + 1] = q.y, X[3 * k + 2] = q.z;
+        }
+        X[12] = lower.x, X[13] = lower.y, X[14] = lower.z;
+        if (!model::element_quality(Shape::Pyramid, 1, X).valid) continue;
+        out_.x[py[4]] = lower.x, out_.y[py[4]] = lower.y, out_.z[py[4]] = lower.z;
+        lowered.insert(i);
+      }
+    }
+    rep_.pyramids_lowered = lowered.size();
+    if (!lowered.empty() && log_)
+      log_("tet: " + std::to_string(lowered.size()) + " pyramid(s) crossing other facets had their apex lowered");
+  }
+
   void boundary_facets() {
     for (auto& F : bfaces_) {
       if (F.covered) continue;
@@ -525,14 +578,29 @@ class Builder {
     return sw;
   }
 
+  // TetGen on the PLC: refused before the call when its facets cross (TetGen cannot mesh that
+  // and 1.5 crashes on some); an internal error (a crash) on a surface that does not cross is
+  // retried once with the quality bounds relaxed and no optimisation, the switches that differ
+  // reported (stats.switches_retry); other failures stop the stage, naming what TetGen named.
   void call_tetgen() {
     const std::string& sw = rep_.switches;
     auto t0 = std::chrono::steady_clock::now();
+    if (std::string c = crossings(false); !c.empty())
+      throw StageError("tet: the surface TetGen would fill crosses itself, so TetGen is not run (it cannot mesh "
+                       "that, and crashes on some)." + c);
     try {
       res_ = detail::run_tetgen(plc_, sw);
     } catch (const detail::TetgenFailure& f) {
       emit(f.output);
-      throw StageError(failure_message(f) + crossings());
+      if (f.code != 2) throw StageError(failure_message(f));
+      rep_.switches_retry = relaxed_switches();
+      if (log_) log_("tet: TetGen failed (" + std::string(f.what()) + "); retried with -" + rep_.switches_retry);
+      try {
+        res_ = detail::run_tetgen(plc_, rep_.switches_retry);
+      } catch (const detail::TetgenFailure& g) {
+        emit(g.output);
+        throw StageError(failure_message(f) + " Retried with -" + rep_.switches_retry + ": " + g.what() + ".");
+      }
     }
     rep_.tetgen_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     emit(res_.output);
@@ -553,6 +621,17 @@ class Builder {
                      "elements grow away from the body), or raise tet.max_elements if this many is intended.");
   }
 
+  // The switches of the retry: quality bounds relaxed (radius-edge 2, no dihedral bound), no
+  // mesh optimisation; sizes and limits as asked.
+  std::string relaxed_switches() const {
+    std::string sw = "pYMzQq2/0";
+    if (opt_.max_volume > 0) sw += "a" + fmt(opt_.max_volume);
+    if (!plc_.point_size.empty()) sw += "m";
+    sw += "O0";
+    if (opt_.max_steiner >= 0) sw += "S" + std::to_string(opt_.max_steiner);
+    return sw;
+  }
+
   void emit(const std::string& text) {
     if (!log_) return;
     std::istringstream s(text);
@@ -565,14 +644,15 @@ class Builder {
   // each other (CGAL's AABB tree, exact predicates; pairs sharing a vertex are not tested), as
   // TetGen's own words name at most two facets and often none (it crashes on some of them). The
   // run log lists up to 20 pairs; the message counts them by the near-field blocks involved.
-  std::string crossings() const {
+  std::string crossings(bool after_failure = true) const {
     std::vector<shell::Vec3> pts(node_of_plc_.size());
     for (std::size_t i = 0; i < pts.size(); ++i) pts[i] = {plc_.points[3 * i], plc_.points[3 * i + 1], plc_.points[3 * i + 2]};
     std::vector<std::array<std::int32_t, 3>> tris(facets_.size());
     for (std::size_t f = 0; f < facets_.size(); ++f)
       for (int k = 0; k < 3; ++k) tris[f][k] = static_cast<std::int32_t>(plc_.triangles[3 * f + k]);
-    auto rep = shell::self_intersections(pts, tris);
-    if (rep.pairs == 0) return " Checked after the failure: no two facets of the far-field boundary without a common vertex cross.";
+    auto rep = shell::self_intersections(pts, tris, opt_.threads);
+    if (rep.pairs == 0)
+      return after_failure ? " Checked after the failure: no two facets of the far-field boundary without a common vertex cross." : "";
     // what a facet belongs to: a boundary face's CAD face, or for the near field the CAD entity
     // of its element's first node (a prism's wall node: its wall face; a junction hex's: its edge)
     auto origin = [&](std::size_t f) {
@@ -593,7 +673,7 @@ class Builder {
       ++by[a < b ? a + " x " + b : b + " x " + a];
       if (log_ && i < 20) log_("crossing facets: " + facet_name(rep.all[i][0]) + " and " + facet_name(rep.all[i][1]));
     }
-    std::string s = " Checked after the failure: " + std::to_string(rep.pairs) +
+    std::string s = std::string(after_failure ? " Checked after the failure: " : " ") + std::to_string(rep.pairs) +
                     " pair(s) of facets of the far-field boundary cross (first: " + facet_name(rep.all[0][0]) + " and " + facet_name(rep.all[0][1]) +
                     "); by where they come from:";
     int k = 0;
@@ -856,7 +936,7 @@ class Builder {
 }  // namespace
 
 nlohmann::json Report::to_json() const {
-  return {{"near_elements", near_elements},
+  nlohmann::json j = {{"near_elements", near_elements},
           {"near_components", near_components},
           {"shell_triangles", shell_triangles},
           {"shell_quads", shell_quads},
@@ -872,7 +952,10 @@ nlohmann::json Report::to_json() const {
           {"check_seconds", check_seconds},
           {"total_seconds", total_seconds},
           {"switches", "-" + switches},
+          {"pyramids_lowered", pyramids_lowered},
           {"tetgen_version", detail::tetgen_version()}};
+  if (!switches_retry.empty()) j["switches_retry"] = "-" + switches_retry;
+  return j;
 }
 
 std::string write_tetgen_input(const model::Mesh& near, const Options& opt, const std::string& stem) {

@@ -64,6 +64,8 @@ struct Report {
   std::size_t tets = 0, steiner_points = 0;
   double tetgen_seconds = 0, check_seconds = 0, total_seconds = 0;  // check: mesh_stats
   std::string switches;
+  std::string switches_retry;       // non-empty: TetGen crashed with `switches` and ran with these
+  std::size_t pyramids_lowered = 0;  // pyramids whose apex was lowered to clear a crossing
   nlohmann::json mesh_stats;  // model::mesh_stats of the result
   nlohmann::json to_json() const;
 };
