@@ -3,7 +3,7 @@ BUILD ?= build
 JOBS ?= $(shell nproc)
 CMAKE_FLAGS ?=
 
-.PHONY: all deps build demo test test-cluster bench bench-speed bench-matrix corpus pictures test-asan fuzz clean
+.PHONY: all deps build demo test test-cluster bench bench-speed bench-matrix corpus corpus-random pictures test-asan fuzz clean
 
 all: build
 
@@ -43,10 +43,20 @@ bench-matrix: build
 	bench/matrix.sh $(BUILD)
 	bench/run.sh --assemble
 
-# Every corpus file (../shared/data/corpus) through `meshflow init` and `meshflow run`, no hand
-# edits: which end with a valid mesh, in bench/results/corpus.md (long: tens of minutes)
+# Every file of both corpora (../shared/data/corpus, bench/corpus/real) through `meshflow init` and `meshflow run`, no hand
+# edits: which end with a valid mesh and each failure's class, in bench/results/corpus.md (long: an hour or more)
 corpus: build
 	scripts/corpus.sh $(BUILD)
+
+# N random CAD files for seed SEED (scripts/random-cad.py: wings, half wings, wing-bodies, propellers,
+# finned bodies of revolution, ducts, filleted blocks, close bodies; STEP in metres, described in
+# shapes.json) written to $(BUILD)/corpus-random-$(SEED), then through `meshflow init` and `meshflow run`
+# like `corpus`: bench/results/corpus-random-$(SEED).md (long: each file may run up to TIMEOUT, 900 s)
+SEED ?= 1
+N ?= 100
+corpus-random: build
+	/usr/bin/python3 scripts/random-cad.py --seed $(SEED) --n $(N) --out $(BUILD)/corpus-random-$(SEED)
+	scripts/corpus.sh $(BUILD) bench/results/corpus-random-$(SEED).md $(BUILD)/corpus-random-$(SEED)/*.step
 
 # README's pictures (docs/img): demo and STEP wing meshes cut and rendered headless (VTK; own Xvfb without a DISPLAY)
 pictures: build

@@ -8,18 +8,25 @@
 #
 #   scripts/corpus.sh BUILD [RESULTS.md] [CAD_FILE|WORKFLOW.yaml ...]
 #
-# Defaults: every file of ../shared/data/corpus (.step/.stp) into bench/results/corpus.md, the
-# pictures beside it in bench/results/corpus/. A .yaml argument is run as it is (no init).
-# MESHFLOW_BIN runs another meshflow (an older build, to compare) while BUILD's meshflow writes
-# the workflows and judges the meshes; TIMEOUT (seconds, default 900) bounds each run;
-# PICTURES=0 skips the pictures.
+# Defaults: every file of both corpora, the simple one (../shared/data/corpus) and the real
+# third-party CAD (bench/corpus/real, sources in bench/corpus/SOURCES.md), into
+# bench/results/corpus.md, the pictures beside it in bench/results/corpus/. Each failure gets a
+# class (scripts/corpus-class.py) and the table ends with the failures counted by class. A .yaml argument is run as it is (no init).
+# MESHFLOW_BIN runs another meshflow (an older build, to compare: its init writes the workflow,
+# its preflight on the run's cache, and its run runs it) while BUILD's meshflow judges the meshes; TIMEOUT (seconds, default 900) bounds each run;
+# PICTURES=0 skips the pictures; KEEP=DIR keeps each run's logs, workflow and report.json there.
 set -uo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 build="$(cd "${1:?usage: scripts/corpus.sh BUILD [RESULTS.md] [CAD_FILE|WORKFLOW.yaml ...]}" && pwd)"
 results="${2:-$root/bench/results/corpus.md}"
 shift $(( $# >= 2 ? 2 : $# ))
 inputs=("$@")
-if [ ${#inputs[@]} -eq 0 ]; then inputs=("$root"/../shared/data/corpus/*.step "$root"/../shared/data/corpus/*.stp); fi
+if [ ${#inputs[@]} -eq 0 ]; then
+  shopt -s nullglob nocaseglob
+  inputs=("$root"/../shared/data/corpus/*.{step,stp}
+          "$root"/bench/corpus/real/*.{step,stp,iges,igs,brep,brp})
+  shopt -u nullglob nocaseglob
+fi
 judge="$build/meshflow"
 bin="${MESHFLOW_BIN:-$judge}"
 timeout_s="${TIMEOUT:-900}"
@@ -31,25 +38,35 @@ trap 'rm -rf "$scratch"' EXIT
 [ "$pictures" = 1 ] && mkdir -p "$picdir"
 
 {
-  echo "| file | init | exit | seconds | peak MB | reached | final mesh elements | min scaled J | ours (contract) | Gmsh | VTK |"
-  echo "|---|---|---|---|---|---|---|---|---|---|---|"
+  echo "| file | init | exit | seconds | peak MB | reached | final mesh elements | min scaled J | ours (contract) | Gmsh | VTK | class |"
+  echo "|---|---|---|---|---|---|---|---|---|---|---|---|"
 } > "$scratch/table"
 valid=0
 for input in "${inputs[@]}"; do
   name="$(basename "${input%.*}")"
+  [[ "$input" == */bench/corpus/real/* ]] && name="real/$name"
   dir="$scratch/$name"
   mkdir -p "$dir"
   decided="given"
   wf="$input"
+  start=$(date +%s.%N)
   if [[ "$input" != *.yaml ]]; then
     wf="$dir/$name.yaml"
-    if ! "$judge" init "$input" -o "$wf" > "$dir/init.log" 2>&1; then
-      printf '| %s | refused: %s | - | - | - | - | - | - | - | - | - |\n' "$name" "$(tail -1 "$dir/init.log")" >> "$scratch/table"
+    timeout "$timeout_s" "$bin" init "$input" -o "$wf" --cache "$dir/cache" > "$dir/init.log" 2>&1
+    init_code=$?
+    if grep -q "unknown option --cache" "$dir/init.log"; then  # a meshflow from before init's preflight
+      "$bin" init "$input" -o "$wf" > "$dir/init.log" 2>&1
+      init_code=$?
+    fi
+    if [ "$init_code" != 0 ]; then
+      cls=$($py "$root/scripts/corpus-class.py" init "$dir")
+      printf '| %s | refused: %s | - | - | - | - | - | - | - | - | - | %s |\n' "$name" "$(tail -1 "$dir/init.log" | tr '|' '/')" "$cls" >> "$scratch/table"
+      echo "$cls" >> "$scratch/classes"
+      echo "$name: init refused ($cls)" >&2
       continue
     fi
     decided=$(grep -q 'symmetry_plane: [xyz][+-]}' "$wf" && echo "half model" || { grep -q 'fluid: box' "$wf" && echo "body in box" || echo "domain"; })
   fi
-  start=$(date +%s.%N)
   timeout "$timeout_s" "$bin" run "$wf" --cache "$dir/cache" --out "$dir/out" > "$dir/log" 2>&1
   code=$?
   secs=$(echo "$(date +%s.%N) - $start" | bc)
@@ -89,13 +106,26 @@ print("valid" if r["ok"] else "INVALID: " + "; ".join("%s %d" % (p["clause"], p[
     vtk=$(timeout 600 $py "$root/tests/workflows/vtk_lagrange_check.py" "$dir/out/mesh.vtu" 2>/dev/null |
           awk '{n+=$2; b+=$3} END {if (NR) printf "%d of %d flagged", b, n; else print "failed"}')
     if [ "$pictures" = 1 ]; then
+      mkdir -p "$(dirname "$picdir/$name.png")"
       $py "$root/scripts/render-cut.py" "$dir/out/mesh.vtu" "$picdir/$name.png" --relative \
           --point 0.5 0.5 0.5 --normal 0 0 1 --up 0 1 0 > "$dir/picture.log" 2>&1 && ours="$ours ([cut](corpus/$name.png))"
     fi
   fi
-  [[ "$ours" == valid* ]] && [ "$code" = 0 ] && valid=$((valid + 1))
-  printf '| %s | %s | %s | %.1f | %s | %s | %s | %s |\n' "$name" "$decided" "$code" "$secs" "$facts" "$ours" "$gmsh" "$vtk" >> "$scratch/table"
-  echo "$name: $decided, exit $code, $(printf '%.1f' "$secs") s, $ours" >&2
+  cls="-"
+  if [[ "$ours" == valid* ]] && [ "$code" = 0 ]; then
+    valid=$((valid + 1))
+  else
+    cls=$($py "$root/scripts/corpus-class.py" "$code" "$dir")
+    [ "$code" = 0 ] && cls="exit 0 with an invalid mesh"
+    echo "$cls" >> "$scratch/classes"
+  fi
+  printf '| %s | %s | %s | %.1f | %s | %s | %s | %s | %s |\n' "$name" "$decided" "$code" "$secs" "$facts" "$ours" "$gmsh" "$vtk" "$cls" >> "$scratch/table"
+  echo "$name: $decided, exit $code, $(printf '%.1f' "$secs") s, $ours, $cls" >&2
+  if [ -n "${KEEP:-}" ]; then
+    mkdir -p "$KEEP/$name"
+    cp "$dir"/*.log "$dir"/log "$dir"/*.yaml "$dir"/out/report.json "$KEEP/$name/" 2>/dev/null
+  fi
+  rm -rf "$dir/cache" "$dir/out"
 done
 mkdir -p "$(dirname "$results")"
 {
@@ -110,5 +140,11 @@ mkdir -p "$(dirname "$results")"
   cat "$scratch/table"
   echo
   echo "$valid of ${#inputs[@]} end with exit 0 and a valid mesh."
+  if [ -s "$scratch/classes" ]; then
+    echo
+    echo "Failures by class:"
+    echo
+    sort "$scratch/classes" | uniq -c | sort -rn | while read -r n c; do echo "- $c: $n"; done
+  fi
 } > "$results"
 echo "$valid of ${#inputs[@]} end with exit 0 and a valid mesh; table in $results" >&2

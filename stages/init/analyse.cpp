@@ -56,6 +56,87 @@ std::vector<char> outer_shell(const Shape& s, const Box& b, double tol) {
   return outer;
 }
 
+// Every face next to planar face f leaves its plane at a right angle (within 60 degrees) at
+// its shared edges' midpoints: a duct's sides at its open end; a rounded box's fillets, tangent
+// to its flat faces, do not.
+bool walls_leave_square(const Shape& s, int f, const Vec3& n) {
+  for (int e : s.face_edges(f)) {
+    if (s.edge_degenerate(e)) continue;
+    auto r = s.edge_range(e);
+    const Vec3 mid = s.edge_point(e, 0.5 * (r.lo + r.hi));
+    for (int g : s.edge_faces(e)) {
+      if (g == f) continue;
+      auto pr = s.project_to_face(g, mid);
+      const Vec3 m = s.face_normal(g, pr.u, pr.v);
+      if (std::abs(n.x * m.x + n.y * m.y + n.z * m.z) > 0.5) return false;
+    }
+  }
+  return true;
+}
+
+// The ports of an internal flow: planar faces bounded by one loop, compact (area / perimeter^2
+// at least 0.05: a circle 0.08, a square 0.0625, a 2.6:1 rectangle 0.05, an airfoil section
+// 0.02), left at a right angle by the faces next to them, the whole shape on one side of their
+// plane (the open ends of a duct, not a pocket's floor), and no other port next to them (a box's
+// faces are next to each other; a duct's ends are not).
+std::vector<Analysis::Port> find_ports(const Shape& s, double tol) {
+  std::vector<Analysis::Port> cand;
+  std::vector<Vec3> vertices;
+  for (int v = 0; v < s.num_vertices(); ++v) vertices.push_back(s.vertex_point(v));
+  for (int f = 0; f < s.num_faces(); ++f) {
+    if (s.face_surface_type(f) != "plane" || s.face_wires(f).size() != 1) continue;
+    double perimeter = 0;
+    for (int e : s.face_edges(f)) perimeter += s.edge_length(e);
+    const double area = s.face_area(f);
+    if (!(perimeter > 0) || area / (perimeter * perimeter) < 0.05) continue;
+    auto uv = s.face_uv_bounds(f);
+    Vec3 p = s.face_point(f, 0.5 * (uv.u0 + uv.u1), 0.5 * (uv.v0 + uv.v1)), n = s.face_normal(f, 0.5 * (uv.u0 + uv.u1), 0.5 * (uv.v0 + uv.v1));
+    if (!walls_leave_square(s, f, n)) continue;
+    int above = 0, below = 0;
+    for (auto& q : vertices) {
+      double d = (q.x - p.x) * n.x + (q.y - p.y) * n.y + (q.z - p.z) * n.z;
+      above += d > 2 * tol, below += d < -2 * tol;
+    }
+    if (above && below) continue;
+    if (above) n = {-n.x, -n.y, -n.z};  // outward: away from the shape
+    cand.push_back({f, p, n, area});
+  }
+  std::vector<Analysis::Port> ports;
+  for (auto& c : cand) {
+    bool next_to_port = false;
+    for (int g : s.face_neighbours(c.face))
+      for (auto& d : cand) next_to_port |= d.face == g;
+    if (!next_to_port) ports.push_back(c);
+  }
+  return ports;
+}
+
+// An internal flow: three ports or more (a tee, a manifold), or two that do not face away from
+// each other (a bend), or two facing away three port diameters apart or more (a pipe, a nozzle;
+// a cylinder as long as it is wide is a body). Returns why, or "" when it is none.
+std::string internal_flow(const Shape& s, Analysis& a, double tol) {
+  auto ports = find_ports(s, tol);
+  if (ports.size() < 2) return "";
+  std::string why;
+  if (ports.size() >= 3) {
+    why = std::to_string(ports.size()) + " ports (planar open ends, the shape behind each)";
+  } else {
+    const auto &p = ports[0], &q = ports[1];
+    const double cosine = p.normal.x * q.normal.x + p.normal.y * q.normal.y + p.normal.z * q.normal.z;
+    const double apart = distance(p.point, q.point);
+    const double across = 2 * std::sqrt(std::max(p.area, q.area) / 3.14159265358979);
+    if (cosine > -0.95)
+      why = "2 ports (planar open ends) whose outward normals turn by " + fmt(std::acos(std::clamp(cosine, -1.0, 1.0)) * 180 / 3.14159265358979) + " degrees (a bend)";
+    else if (apart >= 3 * across)
+      why = "2 opposite ports (planar open ends) " + fmt(apart / across) + " port diameters apart (a pipe or nozzle)";
+    else
+      return "";
+  }
+  a.ports = ports;
+  return why + ": the file is the fluid volume of an internal flow; the ports are inflow and outflow (farfield), the "
+               "other faces walls. Give --fluid box to mesh the flow around it instead";
+}
+
 // The body-or-domain rule, with the figures it used. A tunnel or channel covers each side of its
 // box with its walls (a machined block with 8 corners on its box does not: its steps and pockets
 // leave the sides open); a body cut into a symmetry plane leaves that plane mostly whole and its
@@ -93,6 +174,9 @@ void classify(const Shape& s, Analysis& a, double tol) {
             "field) make " +
             fmt(100 * wall_share) + " % of its area: a symmetry plane or tunnel wall with a body cut into it, which only "
             "the fluid around a body has, so the file is the fluid domain";
+  } else if (std::string why = a.solids == 1 && a.shells == 1 ? internal_flow(s, a, tol) : std::string(); !why.empty()) {
+    a.domain = a.internal = true;
+    a.why = why;
   } else {
     a.domain = false;
     a.why = std::to_string(a.corners) + " of the 8 corners of its bounding box are vertices (its planar faces cover " +
@@ -190,6 +274,11 @@ void find_root_plane(const Shape& s, Analysis& a, double tol) {
 // its outer shell when it has holes, and not its curved far field when a body is cut into it.
 void find_walls(const Shape& s, Analysis& a, double tol) {
   a.walls.clear();
+  if (a.internal) {
+    for (int f = 0; f < a.faces; ++f)
+      if (std::none_of(a.ports.begin(), a.ports.end(), [&](const Analysis::Port& p) { return p.face == f; })) a.walls.push_back(f);
+    return;
+  }
   const std::vector<char> outer = a.domain && has_voids(a) ? outer_shell(s, a.box, tol) : std::vector<char>(a.faces, 0);
   std::vector<char> far(a.faces, 0);
   if (a.domain && !has_voids(a) && a.corners < 8)
@@ -200,7 +289,7 @@ void find_walls(const Shape& s, Analysis& a, double tol) {
 
 }  // namespace
 
-Analysis analyse(const Shape& s) {
+Analysis analyse(const Shape& s, bool as_body) {
   Analysis a;
   a.units = s.units();
   a.solids = s.num_solids();
@@ -211,6 +300,11 @@ Analysis analyse(const Shape& s) {
   a.extent = largest_side(a.box);
   const double tol = 1e-6 * std::hypot(side(a.box, 0), side(a.box, 1), side(a.box, 2));
   classify(s, a, tol);
+  if (as_body && a.domain) {
+    a.domain = a.internal = false;
+    a.ports.clear();
+    a.why = "read as a body because --fluid box says so (the rules said: " + a.why + ")";
+  }
   find_walls(s, a, tol);
   if (a.walls.empty() && a.domain && has_voids(a)) {
     body_with_cavities(a);

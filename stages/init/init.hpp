@@ -10,6 +10,8 @@
 
 namespace meshflow::init {
 
+using cad::Vec3;
+
 struct Analysis {
   std::string units;
   std::string likely_units;  // non-empty: the declared unit gives an implausible size; this one fits
@@ -21,6 +23,15 @@ struct Analysis {
   // (a solid with a void, or a box-shaped tunnel or channel with the body cut out of it)
   bool domain = false;
   std::string why;     // the rule and figures that decided body vs domain
+  // an internal flow (a pipe, tee, nozzle or duct given as its fluid volume): the domain is the
+  // solid, its ports (planar open ends) are inflow/outflow, every other face a wall
+  bool internal = false;
+  struct Port {
+    int face = -1;
+    Vec3 point, normal;  // a point of the port's plane and its outward normal
+    double area = 0;
+  };
+  std::vector<Port> ports;
   int corners = 0;     // corners of `box` that are vertices of the shape (8: a box-shaped domain)
   std::vector<int> walls;  // faces that will be walls (a domain's faces on its box planes are not)
   cad::Box wall_box;
@@ -37,8 +48,9 @@ struct Analysis {
   std::string stands_why;
 };
 
-// Throws StageError when the shape has no faces or no face could be a wall.
-Analysis analyse(const cad::Shape& shape);
+// Throws StageError when the shape has no faces or no face could be a wall. `as_body`: read the
+// shape as a body whatever the rules say (init's --fluid box).
+Analysis analyse(const cad::Shape& shape, bool as_body = false);
 
 // The choices written into the workflow, each with the figure it came from.
 struct Choices {

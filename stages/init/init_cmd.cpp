@@ -2,17 +2,21 @@
 // the CAD once (stages/geometry's importer), measures it (analyse.cpp) and writes a complete
 // workflow a user can run as it is, every choice commented with the figure it came from.
 #include "engine/command.hpp"
+#include "engine/runner.hpp"
 #include "engine/stage.hpp"
+#include "engine/workflow.hpp"
 #include "stages/geometry/blade_sections.hpp"
 #include "stages/geometry/import.hpp"
 #include "stages/geometry/section_util.hpp"
 #include "stages/init/init.hpp"
 
 #include <cctype>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <iterator>
+#include <regex>
 #include <sstream>
 
 namespace meshflow::init {
@@ -20,13 +24,14 @@ namespace {
 namespace fs = std::filesystem;
 
 constexpr const char* kUsage =
-    "init CAD_FILE|SECTIONS [-o WORKFLOW] [--units U] [--order P] [--layers N] [--blades N] [--force]";
+    "init CAD_FILE|SECTIONS [-o WORKFLOW] [--units U] [--order P] [--layers N] [--blades N] [--cache DIR] "
+    "[--fluid auto|box] [--no-preflight] [--force]";
 
 struct Options {
-  fs::path cad, out;
+  fs::path cad, out, cache;
   std::string units;
   int order = 4, layers = 10, blades = 0;
-  bool force = false;
+  bool force = false, preflight = true, as_body = false;
 };
 
 int usage_error(const std::string& what) {
@@ -51,10 +56,16 @@ int parse(const std::vector<std::string>& args, Options& o) {
     bool has_value = i + 1 < args.size();
     if (a == "--force") {
       o.force = true;
-    } else if (a == "-o" || a == "--output" || a == "--units" || a == "--order" || a == "--layers" || a == "--blades") {
+    } else if (a == "--no-preflight") {
+      o.preflight = false;
+    } else if (a == "-o" || a == "--output" || a == "--units" || a == "--order" || a == "--layers" || a == "--blades" ||
+               a == "--cache" || a == "--fluid") {
       if (!has_value) return usage_error(a + " needs a value");
       const std::string& v = args[++i];
       if (a == "-o" || a == "--output") o.out = v;
+      else if (a == "--cache") o.cache = v;
+      else if (a == "--fluid" && v != "auto" && v != "box") return usage_error("--fluid takes auto or box, not '" + v + "'");
+      else if (a == "--fluid") o.as_body = v == "box";
       else if (a == "--units") o.units = v;
       else if (a == "--order" && !integer(a, v, 2, 6, o.order)) return 2;
       else if (a == "--layers" && !integer(a, v, 1, 100, o.layers)) return 2;
@@ -112,7 +123,24 @@ constexpr const char* kOutputs =
     "  shape: {from: heal, formats: [step]}\n"
     "  mesh: {from: split, formats: [msh, vtu, nektar]}\n";
 
-std::string workflow_text(const Options& o, const Analysis& a, const Choices& c) {
+// An internal flow's tags: every face wall (a box round the whole shape), then each port's
+// plane farfield: selectors that hold whatever ids heal gives the faces.
+std::string port_tags(const Analysis& a) {
+  auto v3 = [](const cad::Vec3& p) { return "[" + fmt(p.x) + ", " + fmt(p.y) + ", " + fmt(p.z) + "]"; };
+  const double pad = 0.01 * a.extent;
+  const cad::Vec3 lo{a.box.lo.x - pad, a.box.lo.y - pad, a.box.lo.z - pad}, hi{a.box.hi.x + pad, a.box.hi.y + pad, a.box.hi.z + pad};
+  std::string y = "      tag_overrides:\n        - {tag: wall, box: {min: " + v3(lo) + ", max: " + v3(hi) + "}}\n";
+  for (auto& p : a.ports) {
+    // the point and normal at 10 significant digits: the plane selector's tolerance is 1e-6 of the diagonal
+    char pt[160], nm[160];
+    std::snprintf(pt, sizeof pt, "[%.10g, %.10g, %.10g]", p.point.x, p.point.y, p.point.z);
+    std::snprintf(nm, sizeof nm, "[%.10g, %.10g, %.10g]", p.normal.x, p.normal.y, p.normal.z);
+    y += "        - {tag: farfield, plane: {point: " + std::string(pt) + ", normal: " + nm + "}}  # port, area " + fmt(p.area) + "\n";
+  }
+  return y;
+}
+
+std::string workflow_text(const Options& o, const Analysis& a, const Choices& c, const std::string& preflight_note = "") {
   const std::string u = a.units;
   std::ostringstream y;
   y << "# Written by `meshflow init " << o.cad.filename().string() << "` for " << o.cad.filename().string() << ": "
@@ -120,6 +148,7 @@ std::string workflow_text(const Options& o, const Analysis& a, const Choices& c)
     << "# Bounding box (" << fmt(a.box.lo.x) << ", " << fmt(a.box.lo.y) << ", " << fmt(a.box.lo.z) << ") - ("
     << fmt(a.box.hi.x) << ", " << fmt(a.box.hi.y) << ", " << fmt(a.box.hi.z) << ").\n"
     << (a.units_note.empty() || !o.units.empty() ? std::string() : "# Units: " + a.units_note + ".\n")
+    << preflight_note
     << "# Every choice below says what it came from; change any value and `meshflow run` reruns only\n"
     << "# the stages it affects. `meshflow run --set STAGE.PARAM=VALUE` tries a value without editing.\n"
     << "meshflow: 1\n"
@@ -128,7 +157,11 @@ std::string workflow_text(const Options& o, const Analysis& a, const Choices& c)
   y << "  geometry:\n    kind: step\n    with: {file: " << input_path(o)
     << (o.units.empty() ? "" : ", units: " + o.units) << "}\n";
   const bool half = a.symmetry_plane != "none";
-  if (a.domain)
+  if (a.internal)
+    y << comment("fluid: given. " + a.why + ".")
+      << comment("Tags: every face wall, then the " + std::to_string(a.ports.size()) +
+                 " port(s) farfield by their planes (tag_overrides below; change them there).");
+  else if (a.domain)
     y << comment("fluid: given. The file is the fluid domain: " + a.why + ".")
       << comment("Tags: its faces on its bounding box's planes are farfield (symmetry where a wall meets them), the "
                  "other " + std::to_string(a.walls.size()) + " face(s) walls. Change them with tag_overrides.");
@@ -140,8 +173,11 @@ std::string workflow_text(const Options& o, const Analysis& a, const Choices& c)
                          "meshes the whole body in a box."
                        : " symmetry_plane: x-|x+|y-|y+|z-|z+ makes that side of the box the symmetry plane of a half "
                          "model."));
-  y << "  heal: {kind: heal, needs: [geometry], with: {fluid: " << (a.domain ? "given" : "box")
-    << (half ? ", symmetry_plane: " + a.symmetry_plane : std::string()) << "}}\n";
+  if (a.internal)
+    y << "  heal:\n    kind: heal\n    needs: [geometry]\n    with:\n      fluid: given\n" << port_tags(a);
+  else
+    y << "  heal: {kind: heal, needs: [geometry], with: {fluid: " << (a.domain ? "given" : "box")
+      << (half ? ", symmetry_plane: " + a.symmetry_plane : std::string()) << "}}\n";
   y << "  medial: {kind: medial, needs: [heal]}\n";
   y << comment("Boundary-layer thickness " + fmt(c.thickness) + " " + u + ": " + c.thickness_why +
                ". Where walls face each other closer than that, the layer thins there.")
@@ -251,6 +287,62 @@ std::string blade_workflow_text(const Options& o) {
   return y.str();
 }
 
+// The preflight: geometry, heal, medial and shell of the workflow run on the cache its own run
+// will use (so that run finds them cached), and what they refuse adapted where the refusal
+// says how: a layer thicker than the domain holds is lowered to 0.9 x the largest the shell
+// stage allows; a half model heal cannot close on its plane is meshed whole. At most 4 runs.
+// Returns the comment lines for the workflow's header (what ran, what changed, what failed).
+std::string preflight(const Options& o, Analysis& a, Choices& c) {
+  const std::regex thinner(R"(Use a thickness of at most ([0-9.eE+-]+))");
+  std::string changes, outcome;
+  for (int attempt = 0; attempt < 4; ++attempt) {
+    RunResult r;
+    try {
+      Workflow wf = load_workflow_text(workflow_text(o, a, c), fs::absolute(o.out)).upstream_of("shell");
+      RunOptions ro;
+      ro.cache_dir = o.cache;
+      ro.materialise = false;
+      ro.deliver = false;
+      std::ostringstream sink;
+      ro.out = &sink, ro.err = &sink;
+      r = run_workflow(wf, ro);
+    } catch (const std::exception& e) {
+      return "# Preflight: not run (" + std::string(e.what()) + ").\n";
+    }
+    if (r.ok) {
+      outcome = "geometry, heal, medial and shell ran to the end (cached for `meshflow run`)";
+      break;
+    }
+    const StageResult* failed = nullptr;
+    for (auto& st : r.stages)
+      if (st.status == "failed" || st.status == "invalid") failed = &st;
+    if (!failed) {
+      outcome = "the run did not end ok";
+      break;
+    }
+    std::string first = failed->error.substr(0, failed->error.find('\n'));
+    outcome = "stage " + failed->name + " failed: " + first.substr(0, 300);
+    std::smatch m;
+    if (failed->kind == "shell" && std::regex_search(failed->error, m, thinner)) {
+      const double most = std::stod(m[1].str());
+      if (!(most > 0) || most >= c.thickness) break;
+      changes += "# Preflight: the shell stage found the fluid holds a layer of at most " + fmt(most) + " " + a.units +
+                 " over most of the wall: thickness " + fmt(c.thickness) + " -> " + fmt(0.9 * most) + ".\n";
+      c.thickness = 0.9 * most;
+      c.thickness_why += "; lowered by init's preflight to 0.9 x the largest the shell stage allows";
+      continue;
+    }
+    if (failed->kind == "heal" && a.symmetry_plane != "none") {
+      changes += "# Preflight: heal failed on the half model (" + first.substr(0, 200) + "): meshed whole, symmetry_plane: none.\n";
+      a.stands_why += "; init's preflight: heal could not close it on that plane, so it is meshed whole";
+      a.symmetry_plane = "none";
+      continue;
+    }
+    break;
+  }
+  return changes + "# Preflight: " + outcome + ".\n";
+}
+
 // Writes `text` to o.out through a temporary file (no partial workflow on failure).
 int write_workflow(const Options& o, const std::string& text) {
   fs::path tmp = o.out;
@@ -287,14 +379,19 @@ int init_cmd(const std::vector<std::string>& args) {
   Choices c;
   try {
     cad::Shape shape = geometry::import_cad(o.cad, o.units, 1.0, [](const std::string&) {});
-    a = analyse(shape);
+    a = analyse(shape, o.as_body);
     c = choose(a);
   } catch (const std::exception& e) {
     std::cerr << "meshflow init: " << o.cad.string() << ": " << e.what() << "\n";
     return 2;
   }
-  if (int rc = write_workflow(o, workflow_text(o, a, c))) return rc;
-  std::cout << "wrote " << o.out.string() << ": " << (a.domain ? "a fluid domain" : "a body in a far-field box") << ", "
+  std::string note;
+  if (o.preflight) note = preflight(o, a, c);
+  if (int rc = write_workflow(o, workflow_text(o, a, c, note))) return rc;
+  if (!note.empty()) std::cout << note;
+  std::cout << "wrote " << o.out.string() << ": "
+            << (a.internal ? "an internal flow (" + std::to_string(a.ports.size()) + " ports)" : a.domain ? "a fluid domain" : "a body in a far-field box")
+            << ", "
             << a.walls.size() << " wall face(s), layer " << fmt(c.thickness) << " " << a.units << ", order " << o.order
             << ", " << o.layers << " layers\n"
             << (a.units_note.empty() || !o.units.empty() ? std::string() : "note: " + a.units_note + "\n")

@@ -13,12 +13,15 @@
 #include <BRep_Builder.hxx>
 #include <TopExp_Explorer.hxx>
 #include <TopoDS_Compound.hxx>
+#include <BRepAlgoAPI_Fuse.hxx>
 #include <BRepPrimAPI_MakeBox.hxx>
+#include <BRepPrimAPI_MakeCylinder.hxx>
 #include <BRepPrimAPI_MakeSphere.hxx>
 #include <BRepTools.hxx>
 
 #include <cmath>
 #include <filesystem>
+#include <fstream>
 
 namespace fs = std::filesystem;
 using meshflow::init::analyse;
@@ -146,6 +149,84 @@ TEST_CASE("init: a declared unit whose figures give an implausible size is repor
   // a plausible size: no note
   REQUIRE(BRepTools::Write(BRepPrimAPI_MakeSphere(gp_Pnt(0, 0, 0), 200).Shape(), (dir / "big.brep").c_str()));
   CHECK(analysed(dir / "big.brep").likely_units.empty());
+}
+
+// A comb: a block with three slots 0.02 wide through it. The inner walls of the slots are most of
+// the wall, and the layer init measures from the body (5 % of its side) does not fit in them:
+// the preflight runs the shell stage, which says how thick a layer the fluid holds, and init
+// writes 0.9 x that instead; the stages it ran are in the run's cache.
+TEST_CASE("init: the preflight lowers a layer the shell stage refuses, and its stages are cached for the run") {
+  fs::path dir = mftest::temp_dir("init-preflight");
+  TopoDS_Shape comb = BRepPrimAPI_MakeBox(gp_Pnt(0, 0, 0), 1, 1, 0.2).Shape();
+  for (int k = 0; k < 3; ++k)
+    comb = BRepAlgoAPI_Cut(comb, BRepPrimAPI_MakeBox(gp_Pnt(0.05, -0.1, 0.04 + 0.05 * k), 1, 1.2, 0.02).Shape()).Shape();
+  REQUIRE(BRepTools::Write(comb, (dir / "comb.brep").c_str()));
+  fs::path wf = dir / "comb.yaml", cache = dir / "cache";
+  auto init = mftest::run_cli({"init", (dir / "comb.brep").string(), "-o", wf.string(), "--units", "m", "--cache", cache.string()});
+  CAPTURE(init.out);
+  CAPTURE(init.err);
+  REQUIRE(init.code == 0);
+  CHECK(init.out.find("# Preflight: the shell stage found the fluid holds a layer of at most") != std::string::npos);
+  CHECK(init.out.find("# Preflight: geometry, heal, medial and shell ran to the end") != std::string::npos);
+  auto text = mftest::sh("grep -o 'thickness: [0-9.e-]*' " + wf.string()).out;
+  CAPTURE(text);
+  const double thickness = std::stod(text.substr(text.find(' ') + 1));
+  CHECK(thickness < 0.05);
+  // the run finds the preflight's stages in its cache
+  auto run = mftest::sh(std::string(MESHFLOW_EXE) + " run " + wf.string() + " --cache " + cache.string() +
+                        " --out " + (dir / "out").string() + " --only shell 2>&1");
+  CHECK(run.out.find("cached  shell") != std::string::npos);
+  // --no-preflight writes the measured layer as it is
+  auto plain = mftest::run_cli({"init", (dir / "comb.brep").string(), "-o", (dir / "plain.yaml").string(), "--units", "m", "--no-preflight"});
+  CHECK(plain.code == 0);
+  CHECK(plain.out.find("Preflight") == std::string::npos);
+  fs::remove_all(dir);
+}
+
+TEST_CASE("init: a bent duct or a long pipe given as a solid is an internal flow, its ends the ports, a short cylinder a body, a pipe runs valid") {
+  fs::path dir = mftest::temp_dir("init-internal");
+  TopoDS_Shape duct = BRepAlgoAPI_Fuse(BRepPrimAPI_MakeBox(gp_Pnt(0, 0, 0), 1, 0.2, 0.2).Shape(),
+                                       BRepPrimAPI_MakeBox(gp_Pnt(0.8, 0, 0), 0.2, 1, 0.2).Shape()).Shape();
+  REQUIRE(BRepTools::Write(duct, (dir / "duct.brep").c_str()));
+  auto a = analysed(dir / "duct.brep");
+  CHECK(a.domain);
+  CHECK(a.internal);
+  CHECK(a.why.find("a bend") != std::string::npos);
+  REQUIRE(a.ports.size() == 2);
+  CHECK(a.walls.size() + 2 == static_cast<size_t>(a.faces));
+  for (auto& p : a.ports) CHECK(p.area == doctest::Approx(0.04).epsilon(1e-6));
+  // a pipe 5 diameters long: two opposite ports far apart; the corpus cylinder (as long as wide): a body
+  REQUIRE(BRepTools::Write(BRepPrimAPI_MakeCylinder(0.1, 1.0).Shape(), (dir / "pipe.brep").c_str()));
+  auto pipe = analysed(dir / "pipe.brep");
+  CHECK(pipe.internal);
+  CHECK(pipe.walls.size() == 1);
+  REQUIRE(BRepTools::Write(BRepPrimAPI_MakeCylinder(0.5, 1.0).Shape(), (dir / "stub.brep").c_str()));
+  CHECK(!analysed(dir / "stub.brep").domain);
+  // a box is no duct: its faces are next to each other
+  REQUIRE(BRepTools::Write(BRepPrimAPI_MakeBox(1, 2, 3).Shape(), (dir / "box.brep").c_str()));
+  CHECK(!analysed(dir / "box.brep").domain);
+  // --fluid box reads the duct as a body; the pipe's workflow tags its ports by plane and runs
+  // to a valid mesh, the layer sliding on the ports
+  auto body = meshflow::init::analyse(meshflow::geometry::import_cad(dir / "duct.brep", "", 1.0, [](const std::string&) {}), true);
+  CHECK(!body.domain);
+  auto init = mftest::run_cli({"init", (dir / "pipe.brep").string(), "-o", (dir / "pipe.yaml").string(), "--units", "m",
+                               "--cache", (dir / "cache").string()});
+  CAPTURE(init.out);
+  CAPTURE(init.err);
+  REQUIRE(init.code == 0);
+  CHECK(init.out.find("an internal flow (2 ports)") != std::string::npos);
+  CHECK(mftest::sh("grep -c 'tag: farfield, plane' " + (dir / "pipe.yaml").string()).out.find("2") == 0);
+  auto run = mftest::sh(std::string(MESHFLOW_EXE) + " run " + (dir / "pipe.yaml").string() + " --cache " +
+                        (dir / "cache").string() + " --out " + (dir / "out").string() + " 2>&1");
+  CAPTURE(run.out);
+  CHECK(run.code == 0);
+  auto report = nlohmann::json::parse(std::ifstream(dir / "out" / "report.json"));
+  for (auto& st : report["stages"])
+    if (st["name"] == "heal") {
+      CHECK(st["stats"]["face_tags"]["farfield"] == 2);
+      CHECK(st["stats"]["face_tags"]["wall"].get<int>() >= 1);
+    }
+  fs::remove_all(dir);
 }
 
 TEST_CASE("init: a body standing on one side of its box is a half model on that plane, equal ends are not") {
