@@ -259,18 +259,25 @@ def draw_trailing_edge(d):
     return 0.0
 
 
-def draw_wing(d, semi_span, z_root=0.0):
-    """A straight-tapered wing planform from z_root to the tip at semi_span (sections in wing frame)."""
-    ar = d.uniform("semi_aspect_ratio", 1.2, 4.0)          # semi-span / root chord
-    c_root = d.note("root_chord", semi_span / ar)
+def draw_planform(d, thickness, min_thickness):
+    """Taper, sweep, twist, dihedral, section (profile, thickness), trailing edge and tip of a
+    wing, drawn in this order (the order is part of a seed's shapes)."""
     taper = d.uniform("taper", 0.3, 1.0)
     sweep = d.uniform("sweep_le_deg", 0.0, 40.0)
     twist = d.uniform("tip_twist_deg", -5.0, 3.0)
     dihedral = d.uniform("dihedral_deg", 0.0, 8.0)
-    profile, t = draw_profile(d.sub("section"), (0.08, 0.18), 0.06)
+    profile, t = draw_profile(d.sub("section"), thickness, min_thickness)
     te = draw_trailing_edge(d)
     tip = d.choice("tip", ["flat", "round"])
     d.note("camber_washout", tip == "round")     # a round tip needs a symmetric tip section
+    return taper, sweep, twist, dihedral, profile, t, te, tip
+
+
+def draw_wing(d, semi_span, z_root=0.0):
+    """A straight-tapered wing planform from z_root to the tip at semi_span (sections in wing frame)."""
+    ar = d.uniform("semi_aspect_ratio", 1.2, 4.0)          # semi-span / root chord
+    c_root = d.note("root_chord", semi_span / ar)
+    taper, sweep, twist, dihedral, profile, t, te, tip = draw_planform(d, (0.08, 0.18), 0.06)
     sections = []
     for z in (z_root, semi_span):
         s = z / semi_span
@@ -348,14 +355,7 @@ def family_wing_body(d):
     w = d.sub("wing")
     semi_span = w.uniform("semi_span", 0.4 * length, 0.7 * length)
     c_root = w.note("root_chord", cyl * w.uniform("root_chord_of_cylinder", 0.45, 0.85))
-    taper = w.uniform("taper", 0.3, 1.0)
-    sweep = w.uniform("sweep_le_deg", 0.0, 40.0)
-    twist = w.uniform("tip_twist_deg", -5.0, 3.0)
-    dihedral = w.uniform("dihedral_deg", 0.0, 8.0)
-    profile, t = draw_profile(w.sub("section"), (0.08, 0.16), 0.05)
-    te = draw_trailing_edge(w)
-    tip = w.choice("tip", ["flat", "round"])
-    w.note("camber_washout", tip == "round")
+    taper, sweep, twist, dihedral, profile, t, te, tip = draw_planform(w, (0.08, 0.16), 0.05)
     x_le = nose + (cyl - c_root) * w.uniform("root_position", 0.1, 0.9)
     z_wing = radius * w.uniform("height", -0.5, 0.5)           # low, mid or high wing
     z_wing = w.note("z_wing", max(-0.85 * radius + 0.7 * t * c_root,

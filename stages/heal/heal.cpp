@@ -131,16 +131,17 @@ std::string describe_edges(const Shape& s, const std::vector<int>& edges, size_t
   return out;
 }
 
-double face_area(const TopoDS_Shape& f) {
+// Length, area or volume of a shape (dim 1, 2, 3): OCCT's global properties.
+double measure(const TopoDS_Shape& s, int dim) {
   GProp_GProps g;
-  BRepGProp::SurfaceProperties(f, g);
+  if (dim == 1) BRepGProp::LinearProperties(s, g);
+  else if (dim == 2) BRepGProp::SurfaceProperties(s, g);
+  else BRepGProp::VolumeProperties(s, g);
   return g.Mass();
 }
-double perimeter(const TopoDS_Shape& f) {
-  GProp_GProps g;
-  BRepGProp::LinearProperties(f, g);
-  return g.Mass();
-}
+double face_area(const TopoDS_Shape& f) { return measure(f, 2); }
+double perimeter(const TopoDS_Shape& f) { return measure(f, 1); }
+double volume_of(const TopoDS_Shape& s) { return measure(s, 3); }
 
 // Drops faces that duplicate an earlier face (an interior point of each lies on the other
 // within tol and the areas agree); returns the kept faces as a compound.
@@ -667,12 +668,6 @@ void refuse_open(const TopoDS_Shape& s, const std::string& units, double tol, bo
     throw StageError(src + ": " + std::to_string(me.size()) +
                      " edge(s) are shared by more than two faces (overlapping, duplicated or T-joined faces):" +
                      describe_edges(cur, me) + "\nRemove the extra faces in the CAD.");
-}
-
-double volume_of(const TopoDS_Shape& s) {
-  GProp_GProps g;
-  BRepGProp::VolumeProperties(s, g);
-  return g.Mass();
 }
 
 // {volume, box} of a region heal leaves out, for stats.fixes.
