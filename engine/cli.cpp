@@ -190,6 +190,7 @@ int cli_main(int argc, char** argv) {
   double max_age_days = -1, grace = 3600;
   std::string remote_url, remote_netrc;
   double remote_timeout = 60, remote_connect_timeout = 5;
+  double memory_budget = -1;  // RunOptions' default (a share of the machine)
 
   auto add_common = [&](CLI::App* sc, bool with_run_opts) {
     sc->add_option("workflow", workflow_file, "workflow YAML file")->required();
@@ -199,6 +200,10 @@ int cli_main(int argc, char** argv) {
     if (with_run_opts) {
       sc->add_option("-j,--jobs", jobs, "stages run at once (default: number of cores)");
       sc->add_option("--threads", threads, "total thread budget shared by running stages (default: number of cores)");
+      sc->add_option("--memory-budget", memory_budget,
+                     "GB of memory each stage may take; past it the stage fails with a message (default: 80 % of the "
+                     "machine's memory; 0: no limit)")
+          ->check(CLI::NonNegativeNumber);
       sc->add_option("--out", out_dir, "output folder (default: out/<workflow name>/)");
       sc->add_flag("-v,--verbose", verbose, "show each stage's log lines");
       sc->add_option("--remote-cache", remote_url,
@@ -362,6 +367,7 @@ int cli_main(int argc, char** argv) {
       ro.out_dir = out_dir;
       ro.jobs = jobs;
       ro.threads = threads;
+      ro.memory_budget_gb = memory_budget;
       ro.verbose = verbose;
       ro.allow_invalid = allow_invalid && run->parsed();
       return ro;

@@ -38,6 +38,25 @@ using Clock = std::chrono::steady_clock;
 
 namespace meshflow {
 
+unsigned long long memory_budget_bytes(double gb) {
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+  (void)gb;
+  return 0;
+#else
+#if defined(__has_feature)
+#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer) || __has_feature(memory_sanitizer)
+  (void)gb;
+  return 0;
+#endif
+#endif
+  if (gb == 0) return 0;
+  if (gb > 0) return static_cast<unsigned long long>(gb * 1e9);
+  const long pages = ::sysconf(_SC_PHYS_PAGES), page = ::sysconf(_SC_PAGESIZE);
+  if (pages <= 0 || page <= 0) return 0;
+  return static_cast<unsigned long long>(kDefaultMemoryShare * static_cast<double>(pages) * static_cast<double>(page));
+#endif
+}
+
 fs::path resolve_cache_dir(const Workflow& wf, const fs::path& option) {
   if (!option.empty()) return fs::absolute(option);
   if (const char* env = std::getenv("MESHFLOW_CACHE"); env && *env) return fs::absolute(env);
@@ -163,8 +182,18 @@ class ChildContext final : public StageContext {
   json stats_ = json::object();
 };
 
+// The budget's message: what was asked and how to change it.
+std::string over_budget(unsigned long long budget) {
+  char b[64];
+  std::snprintf(b, sizeof b, "%.3g GB", budget / 1e9);
+  return std::string("the stage needed more memory than its budget of ") + b +
+         " (meshflow run --memory-budget GB; by default " + std::to_string(int(100 * kDefaultMemoryShare)) +
+         " % of this machine's memory): make the mesh coarser (larger sizes, fewer layers, a lower order) or "
+         "run it on a larger machine";
+}
+
 [[noreturn]] void child_main(const StageDecl& d, std::vector<Artifact> inputs, Cache& cache, const fs::path& scratch,
-                             int fd, int threads, pid_t parent) {
+                             int fd, int threads, pid_t parent, unsigned long long budget) {
   // Die with the engine: a killed `meshflow` leaves no orphan stage writing into the cache.
   ::prctl(PR_SET_PDEATHSIG, SIGKILL);
   if (::getppid() != parent) std::_Exit(9);
@@ -179,6 +208,10 @@ class ChildContext final : public StageContext {
     ::dup2(logfd, 1);
     ::dup2(logfd, 2);
     ::close(logfd);
+  }
+  if (budget > 0) {
+    rlimit lim{static_cast<rlim_t>(budget), static_cast<rlim_t>(budget)};
+    ::setrlimit(RLIMIT_AS, &lim);
   }
   json result;
   ChildContext ctx(d, std::move(inputs), scratch, fd, threads);
@@ -196,10 +229,16 @@ class ChildContext final : public StageContext {
     result = {{"ok", true}, {"outputs", outs}, {"stats", ctx.stats()}, {"log", ctx.log_lines()}};
   } catch (const StageError& e) {
     result = {{"ok", false}, {"error", e.what()}, {"internal", false}};
+  } catch (const std::bad_alloc&) {
+    result = {{"ok", false}, {"error", budget > 0 ? over_budget(budget) : "out of memory"}, {"internal", false}};
   } catch (const std::exception& e) {
     result = {{"ok", false}, {"error", e.what()}, {"internal", true}};
   } catch (...) {
-    result = {{"ok", false}, {"error", "unknown exception"}, {"internal", true}};
+    // a library's own out-of-memory exception (OpenCASCADE's Standard_OutOfMemory) is no
+    // std::exception: with a budget set, that is the likely one
+    result = {{"ok", false},
+              {"error", budget > 0 ? "unknown exception; " + over_budget(budget) + " is the likely cause" : "unknown exception"},
+              {"internal", true}};
   }
   if (!result["ok"].get<bool>()) ctx.send_error(result["error"].get<std::string>());
   try {
@@ -573,6 +612,7 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
     remove_stale_tmp_files(rr.out_dir);  // left by a run killed while writing outputs
   }
   Cache cache(resolve_cache_dir(wf, opt.cache_dir));
+  const unsigned long long budget = memory_budget_bytes(opt.memory_budget_gb);
   cache.clean_stale_tmp();
   cache.clean_stale_locks();
   json quarantined = json::array();
@@ -767,7 +807,7 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
       if (pid < 0) throw std::runtime_error(std::string("fork: ") + std::strerror(errno));
       if (pid == 0) {
         ::close(fds[0]);
-        child_main(d, gather_inputs(d, results), cache, scratch, fds[1], stage_threads, parent);
+        child_main(d, gather_inputs(d, results), cache, scratch, fds[1], stage_threads, parent, budget);
       }
       ::close(fds[1]);
       ::fcntl(fds[0], F_SETFL, O_NONBLOCK);

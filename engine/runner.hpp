@@ -18,12 +18,21 @@
 namespace meshflow {
 
 constexpr int kEngineFormat = 1;  // bump when the key preimage or the store layout changes
+constexpr double kDefaultMemoryShare = 0.8;  // RunOptions::memory_budget_gb's default: this share of the machine
+
+// The memory budget in bytes that `gb` (RunOptions::memory_budget_gb) means on this machine;
+// 0: none (also in sanitizer builds, whose shadow memory needs terabytes of address space).
+unsigned long long memory_budget_bytes(double gb);
 
 struct RunOptions {
   std::filesystem::path cache_dir;  // empty: --cache > $MESHFLOW_CACHE > .meshflow/ beside the workflow
   std::filesystem::path out_dir;    // empty: out/<workflow name>/ under the current directory
   int jobs = 0;                     // stages at once; 0 = number of cores
   int threads = 0;                  // total thread budget; 0 = number of cores
+  // Address space each stage process may take, in GB (RLIMIT_AS): a stage past it fails with a
+  // message naming the budget instead of being killed by the kernel's OOM killer (or taking the
+  // machine down). Negative: kDefaultMemoryShare of the machine's memory; 0: no limit.
+  double memory_budget_gb = -1;
   bool materialise = true;          // write outputs and report.json
   bool verbose = false;             // stage log lines as they come
   // Accept results that break their contract (stats.problems): downstream stages run on them

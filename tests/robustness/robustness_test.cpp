@@ -105,3 +105,27 @@ TEST_CASE("4 processes on one workflow and 2 on another, one cache: all succeed,
   CHECK(count_entries(cache / "locks") == 0);
   fs::remove_all(d);
 }
+
+// A stage past the memory budget fails with a message naming it, not killed by the kernel; the
+// stages before it are kept, it leaves no entry, and the same run with room ends ok.
+TEST_CASE("a stage past --memory-budget fails with a message naming the budget, leaves no entry, and runs with room") {
+  fs::path d = temp_dir("budget");
+  std::ofstream(d / "w.yaml") << "meshflow: 1\nname: budget\nstages:\n"
+                              << "  geometry: {kind: naca_wing, with: {span: 1.0}}\n"
+                              << "  heal: {kind: heal, needs: [geometry]}\n"
+                              << "  medial: {kind: medial, needs: [heal]}\n";
+  std::string wf = (d / "w.yaml").string(), cache = (d / "cache").string();
+  // 0.12 GB of address space: the medial stage's Delaunay needs more
+  int code = wait_exit(spawn({"run", wf, "--cache", cache, "--out", (d / "out").string(), "--memory-budget", "0.12"}, d / "low.log"));
+  std::string log = slurp(d / "low.log");
+  INFO(log);
+  CHECK(code == 1);
+  CHECK(log.find("stage 'medial' (kind medial) failed: the stage needed more memory than its budget of 0.12 GB") != std::string::npos);
+  CHECK(log.find("--memory-budget") != std::string::npos);
+  CHECK(count_entries(d / "cache/actions") == 2);  // geometry and heal
+  CHECK(wait_exit(spawn({"run", wf, "--cache", cache, "--out", (d / "out").string()}, d / "ok.log")) == 0);
+  CHECK(count_entries(d / "cache/actions") == 3);
+  // a negative budget is a usage error
+  CHECK(wait_exit(spawn({"run", wf, "--cache", cache, "--memory-budget", "-2"}, d / "bad.log")) != 0);
+  fs::remove_all(d);
+}
