@@ -51,7 +51,7 @@ for input in "${inputs[@]}"; do
   wf="$input"
   start=$(date +%s.%N)
   if [[ "$input" != *.yaml ]]; then
-    wf="$dir/$name.yaml"
+    wf="$dir/$(basename "$name").yaml"
     timeout "$timeout_s" "$bin" init "$input" -o "$wf" --cache "$dir/cache" > "$dir/init.log" 2>&1
     init_code=$?
     if grep -q "unknown option --cache" "$dir/init.log"; then  # a meshflow from before init's preflight
@@ -60,6 +60,7 @@ for input in "${inputs[@]}"; do
     fi
     if [ "$init_code" != 0 ]; then
       cls=$($py "$root/scripts/corpus-class.py" init "$dir")
+      [ "$init_code" = 124 ] && cls="timeout (init's preflight)"
       printf '| %s | refused: %s | - | - | - | - | - | - | - | - | - | %s |\n' "$name" "$(tail -1 "$dir/init.log" | tr '|' '/')" "$cls" >> "$scratch/table"
       echo "$cls" >> "$scratch/classes"
       echo "$name: init refused ($cls)" >&2
