@@ -709,29 +709,6 @@ TopoDS_Shape one_region(const TopoDS_Shape& fluid, json& fixes, StageContext& ct
   return so[keep];
 }
 
-// A fluid solid that fails BRepCheck after the boolean operations and unification (a face of
-// an 822-face engine block whose trimming the cut left inconsistent) gets ShapeFix once more;
-// the fixed solid is taken when it passes, else the solid is left for the check to refuse.
-TopoDS_Shape fix_invalid(const TopoDS_Shape& fluid, double tol, double diag, json& fixes, StageContext& ctx) {
-  if (BRepCheck_Analyzer(fluid).IsValid()) return fluid;
-  try {
-    Handle(ShapeFix_Shape) fx = new ShapeFix_Shape(fluid);
-    fx->SetPrecision(tol);
-    fx->SetMaxTolerance(std::max(tol, 1e-3 * diag));
-    fx->Perform();
-    TopoDS_Shape fixed = fx->Shape();
-    int solids = 0;
-    for (TopExp_Explorer ex(fixed, TopAbs_SOLID); ex.More(); ex.Next()) ++solids;
-    if (solids != 1 || !BRepCheck_Analyzer(fixed).IsValid()) return fluid;
-    TopExp_Explorer ex(fixed, TopAbs_SOLID);
-    fixes["fluid_fixed"] = "the fluid solid failed BRepCheck after the boolean operations: ShapeFix made it valid";
-    ctx.log("heal: the fluid solid failed BRepCheck; ShapeFix made it valid");
-    return ex.Current();
-  } catch (const Standard_Failure&) {
-    return fluid;
-  }
-}
-
 // The interferences `a` and `b` both found: face pairs in both; `a`'s other descriptions when
 // `b` has some too (they cannot be matched one to one; kept, not dropped, so that nothing real
 // is lost).
@@ -865,7 +842,6 @@ void run(StageContext& ctx) {
     throw StageError(src + ": OpenCASCADE failed building the fluid solid (" + e.GetMessageString() + ")");
   }
   fluid = one_region(fluid, fixes, ctx, src);
-  fluid = fix_invalid(fluid, tol, diag, fixes, ctx);
 
   // 8. checks
   ctx.progress(0.85, "checking");

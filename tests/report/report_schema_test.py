@@ -60,7 +60,6 @@ NOT_EXERCISED = {
     "#stats_heal.fixes.enclosed_regions_dropped": "a fluid region in pieces (tests/heal: a hollow body not sewn again)",
     "#stats_heal.fixes.planar_holes_capped": "a surface model with planar openings (tests/heal: a box missing a face)",
     "#stats_heal.fixes.regions_outside_dropped": "a given shell outside the outer one (tests/heal: two boxes apart)",
-    "#stats_heal.fixes.fluid_fixed": "a fluid solid the boolean operations left invalid (an 822-face engine block)",
     "#stats_heal.fixes.repairs_skipped": "a closed input every tolerance tried opens",
     "#stats_heal.fixes.sewing_gap_measured": "a surface model with gaps (tests/heal: a face 1e-3 apart)",
     "#stats_heal.fixes.tolerance_lowered": "a closed input the tolerance opens (a small feature in a large domain)",
