@@ -38,17 +38,20 @@ using Clock = std::chrono::steady_clock;
 
 namespace meshflow {
 
-unsigned long long memory_budget_bytes(double gb) {
+// GCC says a sanitizer build with __SANITIZE_*__, clang with __has_feature
 #if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#define MESHFLOW_SANITIZED 1
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer) || __has_feature(memory_sanitizer)
+#define MESHFLOW_SANITIZED 1
+#endif
+#endif
+
+unsigned long long memory_budget_bytes(double gb) {
+#ifdef MESHFLOW_SANITIZED
   (void)gb;
   return 0;
 #else
-#if defined(__has_feature)
-#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer) || __has_feature(memory_sanitizer)
-  (void)gb;
-  return 0;
-#endif
-#endif
   if (gb == 0) return 0;
   if (gb > 0) return static_cast<unsigned long long>(gb * 1e9);
   const long pages = ::sysconf(_SC_PHYS_PAGES), page = ::sysconf(_SC_PAGESIZE);

@@ -374,7 +374,6 @@ SelfInterference self_interference(const Shape& s, int level, bool parallel, dou
 // The heal parameters, read once.
 struct Options {
   double tol = 0;   // the tolerance asked for (0 in the params: 1e-6 of the body's diagonal)
-  bool user_tol = false;
   bool sew = true, small_edges = true, small_faces = true, unify = true, cap_holes = true, check_si = true;
   int si_level = 5;
   double si_tol = 0;  // 0: 10 x the default tolerance
@@ -383,8 +382,7 @@ struct Options {
 Options read_options(const nlohmann::json& P, const TopoDS_Shape& in, double diag) {
   Options o;
   o.tol = P.at("tolerance").get<double>();
-  o.user_tol = o.tol > 0;
-  if (!o.user_tol) o.tol = 1e-6 * body_diagonal(in, diag);
+  if (o.tol <= 0) o.tol = 1e-6 * body_diagonal(in, diag);
   o.sew = P.at("sew").get<bool>();
   o.small_edges = P.at("fix_small_edges").get<bool>();
   o.small_faces = P.at("fix_small_faces").get<bool>();
@@ -404,14 +402,11 @@ struct Steps {
   bool sew = true, small_edges = true, small_faces = true;
 };
 
-// Steps 0-5 with tolerance `tol`: fuse a box body's solids, drop duplicate faces, sew, ShapeFix,
-// small edges, small faces. Each step's counts go to `fixes`.
-TopoDS_Shape repair(TopoDS_Shape s, double tol, double diag, const Steps& steps, bool fuse, json& fixes,
-                    StageContext& ctx, const std::string& src) {
+// Steps 1-5 with tolerance `tol`: drop duplicate faces, sew, ShapeFix, small edges, small
+// faces. Each step's counts go to `fixes`.
+TopoDS_Shape repair(TopoDS_Shape s, double tol, double diag, const Steps& steps, json& fixes, StageContext& ctx,
+                    const std::string& src) {
   try {
-    // 0. a body made of several solids (a wing and a fuselage, parts that share faces or
-    // overlap) is one body: fused before anything is sewn or cut, so their shared faces go
-    if (fuse) s = fuse_solids(s, fixes, ctx);
     // 1-2. duplicates, sewing
     if (steps.sew) {
       ctx.progress(0.05, "duplicate faces");
@@ -470,6 +465,16 @@ TopoDS_Shape repair(TopoDS_Shape s, double tol, double diag, const Steps& steps,
                      "); try another tolerance or repair the CAD in its source system");
   }
   return s;
+}
+
+// Step 0 (fuse_solids), an OCCT failure reported as repair() reports its own.
+TopoDS_Shape fuse_step(const TopoDS_Shape& s, json& fixes, StageContext& ctx, const std::string& src) {
+  try {
+    return fuse_solids(s, fixes, ctx);
+  } catch (const Standard_Failure& e) {
+    throw StageError(src + ": OpenCASCADE failed while repairing the shape (" + e.GetMessageString() +
+                     "); try another tolerance or repair the CAD in its source system");
+  }
 }
 
 int free_edge_count(const TopoDS_Shape& s) { return (int)cad::occt::make_shape(s, "").free_edges().size(); }
@@ -579,21 +584,25 @@ TopoDS_Shape cap_planar_openings(const TopoDS_Shape& s, double tol, json& fixes,
 //     edges (up to 1 % of its diagonal: a gap wider than that is a missing face, not an
 //     inaccuracy), then its planar openings are capped.
 // Returns the repaired shape and the sewing tolerance used (`tol`); what was tried goes to fixes.
-TopoDS_Shape repair_closed(const TopoDS_Shape& in, const Options& o, double diag, double& tol, json& fixes,
-                           StageContext& ctx, const std::string& src) {
-  const Counts before = count(in, tol);
-  const bool input_closed = before.free_edges == 0 && before.solids > 0;
+// Step 0 first, once: with fluid: box a body of several solids (a wing and a fuselage, parts
+// that share faces or overlap) is one body, fused before anything is sewn or cut so that their
+// shared faces go; every attempt starts from the fused body.
+TopoDS_Shape repair_closed(const TopoDS_Shape& input, bool input_closed, const Options& o, double diag, double& tol,
+                           json& fixes, StageContext& ctx, const std::string& src) {
+  json fused = json::object();
+  const TopoDS_Shape in = o.fluid == "box" ? fuse_step(input, fused, ctx, src) : input;
+  fixes.update(fused);
   const Steps asked{o.sew, o.small_edges, o.small_faces};
-  const bool fuse = o.fluid == "box";
-  TopoDS_Shape s = repair(in, tol, diag, asked, fuse, fixes, ctx, src);
+  auto take = [&](const json& f) { fixes = f, fixes.update(fused); };  // an attempt's fixes, the fusion's kept
+  TopoDS_Shape s = repair(in, tol, diag, asked, fixes, ctx, src);
   int fe = free_edge_count(s);
   if (fe == 0) return s;
   if (input_closed) {
     for (double t : {tol / 100, tol / 1e4}) {
       json f = json::object();
-      TopoDS_Shape r = repair(in, t, diag, asked, fuse, f, ctx, src);
+      TopoDS_Shape r = repair(in, t, diag, asked, f, ctx, src);
       if (free_edge_count(r) == 0) {
-        fixes = f;
+        take(f);
         fixes["tolerance_lowered"] = {{"from", tol}, {"to", t}, {"free_edges_at_first", fe}};
         ctx.log("heal: the input was closed and repairing with tolerance " + fmt(tol) + " left " + std::to_string(fe) +
                 " free edge(s) (features smaller than the tolerance collapsed): repaired again with " + fmt(t));
@@ -602,9 +611,9 @@ TopoDS_Shape repair_closed(const TopoDS_Shape& in, const Options& o, double diag
       }
     }
     json f = json::object();
-    TopoDS_Shape r = repair(in, tol, diag, Steps{false, false, false}, fuse, f, ctx, src);
+    TopoDS_Shape r = repair(in, tol, diag, Steps{false, false, false}, f, ctx, src);
     if (free_edge_count(r) == 0) {
-      fixes = f;
+      take(f);
       fixes["repairs_skipped"] = {{"why", "sewing and the small-entity fixes opened the closed input"}, {"free_edges_at_first", fe}};
       ctx.log("heal: the input was closed and sewing or the small-entity fixes opened it at every tolerance tried: "
               "only ShapeFix was applied");
@@ -621,13 +630,14 @@ TopoDS_Shape repair_closed(const TopoDS_Shape& in, const Options& o, double diag
     for (double g : tries) {
       json f = json::object();
       const double t = 1.5 * g;
-      TopoDS_Shape r = repair(in, t, diag, asked, fuse, f, ctx, src);
+      TopoDS_Shape r = repair(in, t, diag, asked, f, ctx, src);
       const int n = free_edge_count(r);
       if (n < fe) {
         f["sewing_gap_measured"] = {{"gap", g}, {"tolerance", t}, {"free_edges_before", fe}, {"free_edges_after", n}};
         ctx.log("heal: the free edges lie up to " + fmt(g) + " apart: sewn again with tolerance " + fmt(t) + ", " +
                 std::to_string(fe) + " -> " + std::to_string(n) + " free edge(s)");
-        s = r, fe = n, fixes = f, tol = t;
+        s = r, fe = n, tol = t;
+        take(f);
         if (fe == 0) return s;
       }
     }
@@ -743,15 +753,16 @@ void run(StageContext& ctx) {
   json fixes = json::object();
   const TopoDS_Shape& input = cad::occt::shape(in);
   const Counts before = count(input, tol);
+  const bool input_closed = before.free_edges == 0 && before.solids > 0;
   st["before"] = to_json(before);
   if (in.num_faces() == 0) throw StageError(src + ": the input shape has no faces: nothing to heal");
 
-  // 1-5, until closed where that can be done without inventing geometry
-  TopoDS_Shape s = repair_closed(input, opt, diag, tol, fixes, ctx, src);
+  // 0-5, until closed where that can be done without inventing geometry
+  TopoDS_Shape s = repair_closed(input, input_closed, opt, diag, tol, fixes, ctx, src);
   st["tolerance"] = tol;
   // 6. the fluid solid
   ctx.progress(0.6, "fluid solid");
-  refuse_open(s, in.units(), tol, before.free_edges == 0 && before.solids > 0, opt.cap_holes, src);
+  refuse_open(s, in.units(), tol, input_closed, opt.cap_holes, src);
   std::vector<TopoDS_Solid> solids;
   for (TopExp_Explorer ex(s, TopAbs_SOLID); ex.More(); ex.Next()) solids.push_back(TopoDS::Solid(ex.Current()));
   if (solids.empty())

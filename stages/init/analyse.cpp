@@ -141,23 +141,26 @@ std::string internal_flow(const Shape& s, Analysis& a, double tol) {
 // box with its walls (a machined block with 8 corners on its box does not: its steps and pockets
 // leave the sides open); a body cut into a symmetry plane leaves that plane mostly whole and its
 // walls a small part of the domain's surface (a pocket milled into a part does not).
-void classify(const Shape& s, Analysis& a, double tol) {
+void classify(const Shape& s, Analysis& a, double tol, const std::vector<char>& far) {
   a.corners = cad::box_corner_vertices(s, a.box, tol);
   const auto cover = cad::box_side_coverage(s, a.box, tol);
   const double least_cover = *std::min_element(cover.begin(), cover.end());
   double area = 0, off_box = 0;
-  std::vector<char> far(a.faces, 0);
-  for (int f : cad::curved_farfield(s, a.box, tol)) far[f] = 1;
   for (int f = 0; f < a.faces; ++f) {
     double fa = s.face_area(f);
     area += fa;
     if (box_sides(s, f, a.box, tol).empty() && !far[f]) off_box += fa;
   }
   const double wall_share = area > 0 ? off_box / area : 1;
+  // a cut face counts only in a far field that is no box (a half sphere, a half cylinder): in a
+  // box it is a tunnel (the rule above); with no far field at all it is a block with a hole
+  // through it, a body (random-cad's filleted blocks were read as domains and failed in sweep)
+  const bool curved_far_field = std::find(far.begin(), far.end(), 1) != far.end();
   std::vector<int> cut;
-  for (int f : cad::cut_box_faces(s, a.box, tol))
-    for (auto [k, hi] : box_sides(s, f, a.box, tol))
-      if (cover[2 * k + hi] >= 0.5 && wall_share < 0.5) cut.push_back(f);
+  if (curved_far_field)
+    for (int f : cad::cut_box_faces(s, a.box, tol))
+      for (auto [k, hi] : box_sides(s, f, a.box, tol))
+        if (cover[2 * k + hi] >= 0.5 && wall_share < 0.5) cut.push_back(f);
   if (has_voids(a)) {
     a.domain = true;
     a.why = std::to_string(a.solids) + " solid(s) with " + std::to_string(a.shells) +
@@ -272,7 +275,7 @@ void find_root_plane(const Shape& s, Analysis& a, double tol) {
 
 // The faces that will be walls: all of a body's; of a domain, those off its box's planes, not on
 // its outer shell when it has holes, and not its curved far field when a body is cut into it.
-void find_walls(const Shape& s, Analysis& a, double tol) {
+void find_walls(const Shape& s, Analysis& a, double tol, const std::vector<char>& curved_far) {
   a.walls.clear();
   if (a.internal) {
     for (int f = 0; f < a.faces; ++f)
@@ -280,11 +283,9 @@ void find_walls(const Shape& s, Analysis& a, double tol) {
     return;
   }
   const std::vector<char> outer = a.domain && has_voids(a) ? outer_shell(s, a.box, tol) : std::vector<char>(a.faces, 0);
-  std::vector<char> far(a.faces, 0);
-  if (a.domain && !has_voids(a) && a.corners < 8)
-    for (int f : cad::curved_farfield(s, a.box, tol)) far[f] = 1;
+  const bool curved = a.domain && !has_voids(a) && a.corners < 8;
   for (int f = 0; f < a.faces; ++f)
-    if (!a.domain || (box_sides(s, f, a.box, tol).empty() && !outer[f] && !far[f])) a.walls.push_back(f);
+    if (!a.domain || (box_sides(s, f, a.box, tol).empty() && !outer[f] && !(curved && curved_far[f]))) a.walls.push_back(f);
 }
 
 }  // namespace
@@ -299,16 +300,19 @@ Analysis analyse(const Shape& s, bool as_body) {
   a.box = s.box(static_cast<int>(std::max(1u, std::thread::hardware_concurrency())));  // the faces' boxes in parallel: the same box
   a.extent = largest_side(a.box);
   const double tol = 1e-6 * std::hypot(side(a.box, 0), side(a.box, 1), side(a.box, 2));
-  classify(s, a, tol);
+  // the faces of a curved far field (cad::curved_farfield), found once for both rules
+  std::vector<char> far(a.faces, 0);
+  for (int f : cad::curved_farfield(s, a.box, tol)) far[f] = 1;
+  classify(s, a, tol, far);
   if (as_body && a.domain) {
     a.domain = a.internal = false;
     a.ports.clear();
     a.why = "read as a body because --fluid box says so (the rules said: " + a.why + ")";
   }
-  find_walls(s, a, tol);
+  find_walls(s, a, tol, far);
   if (a.walls.empty() && a.domain && has_voids(a)) {
     body_with_cavities(a);
-    find_walls(s, a, tol);
+    find_walls(s, a, tol, far);
   }
   if (a.walls.empty())
     throw StageError("every face of the domain lies on its bounding box: there is no body to put a boundary layer on");

@@ -377,7 +377,6 @@ class Builder {
   std::vector<char> smooth_points(const std::vector<Loop>& loops) const;
   detail::UVMeshInput uv_input(int f, const std::vector<Loop>& loops, const Reparam& RP, FaceBoundary& fb);
   detail::UVMeshOutput mesh_parameter_plane(int f, const detail::UVMeshInput& in);
-  detail::UVMeshOutput remesh_folded(int f, const detail::UVMeshInput& in, const detail::UVMeshOutput& first);
   void face_triangles(int f, const detail::UVMeshOutput& out, const Reparam& RP, const std::vector<std::uint32_t>& bnode);
   void drop_pole_folds(int f);
   // periodic: hi face `hi` as the image of the meshed lo face `lo` (hb: hi's boundary loop nodes)
@@ -1274,55 +1273,12 @@ detail::UVMeshOutput Builder::mesh_parameter_plane(int f, const detail::UVMeshIn
   if (std::getenv("MESHFLOW_SWEEP_DEBUG"))
     log("face " + std::to_string(f) + ": " + std::to_string(out.uv.size()) + " points, " + std::to_string(out.tris.size()) +
         " triangles, " + std::to_string(out.passes) + " passes, min quality " + std::to_string(out.min_quality));
-  if (out.folded > 0) out = remesh_folded(f, in, out);
   if (out.folded > 0)
     throw StageError("sweep: face " + std::to_string(f) + " (" + cad::tag_name(S.face_tag(f)) + ", " + S.face_surface_type(f) +
                      "): " + std::to_string(out.folded) +
                      " triangle(s) of its parameter-plane mesh fold over in 3D (their normal opposes the surface's) after "
-                     "refinement, and with each of the fallback settings (no smoothing, finer interiors); the "
-                     "parameterisation is singular there (a pole): lower the wall sizes or heal the face");
+                     "refinement; the parameterisation is singular there (a pole): lower the wall sizes or heal the face");
   return out;
-}
-
-// A face whose parameter-plane mesh folds over in 3D (round a pole, in a strongly sheared
-// plane) is meshed again with other settings, the boundary nodes unchanged (the neighbouring
-// faces and the integer program's divisions stay as they are), the first without folds kept:
-// no smoothing (a smoothed point next to a pole can sit just across it), then interiors 1.5
-// and 2.5 times finer than the boundary's sizing asks (a smaller triangle folds less round a
-// singular point: the corpus cone's apex, a propeller blade's tip pole) with a stricter shape
-// bound. Deterministic: the same ladder in the same order.
-detail::UVMeshOutput Builder::remesh_folded(int f, const detail::UVMeshInput& in, const detail::UVMeshOutput& first) {
-  struct Variant {
-    const char* what;
-    int smooth_passes;
-    double finer, min_quality;
-  };
-  static const Variant ladder[] = {{"no smoothing", 0, 1.0, 0.4},
-                                   {"interior 1.5x finer", 4, 1.5, 0.5},
-                                   {"interior 2.5x finer, no smoothing", 0, 2.5, 0.5}};
-  for (const Variant& v : ladder) {
-    detail::UVMeshInput alt = in;
-    alt.smooth_passes = v.smooth_passes;
-    alt.min_quality = v.min_quality;
-    if (v.finer != 1.0) {
-      auto size = in.size;
-      alt.size = [size, k = v.finer](double u, double w) { return size(u, w) / k; };
-      alt.min_length = in.min_length / v.finer;
-    }
-    detail::UVMeshOutput out;
-    try {
-      out = detail::mesh_uv(alt);
-    } catch (const std::exception&) {
-      continue;
-    }
-    if (out.folded == 0) {
-      ++R.faces_remeshed;
-      log("sweep: face " + std::to_string(f) + ": " + std::to_string(first.folded) +
-          " folded triangle(s) in its parameter-plane mesh; meshed again with " + v.what + ": none");
-      return out;
-    }
-  }
-  return first;
 }
 
 // The parameter-plane triangles as 3D triangles of face f, oriented out of the fluid; the new
@@ -2493,7 +2449,7 @@ nlohmann::json Report::to_json() const {
           {"junction_blocks", junction_blocks},     {"edges_cut", edges_cut}, {"thinned", thinned}, {"placed", placed}, {"nodes", nodes},
           {"outer_crossings_before", outer_crossings_before}, {"outer_crossings", outer_crossings},
           {"crossing_nodes_thinned", crossing_nodes_thinned}, {"crossing_min_scale", crossing_min_scale},
-          {"faces_meshed", faces_meshed},           {"faces_remeshed", faces_remeshed},           {"surface_seconds", surface_seconds},
+          {"faces_meshed", faces_meshed},           {"surface_seconds", surface_seconds},
           {"periodic_faces_copied", periodic_faces_copied}, {"periodic_pairs", periodic_pairs},
           {"periodic_max_mismatch", periodic_max_mismatch},
           {"periodic_max_mismatch_rel", periodic_model_size > 0 ? periodic_max_mismatch / periodic_model_size : 0.0},

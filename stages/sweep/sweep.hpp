@@ -161,7 +161,6 @@ struct Report {
   std::size_t crossing_nodes_thinned = 0;
   double crossing_min_scale = 1;
   std::size_t nodes = 0, faces_meshed = 0;
-  std::size_t faces_remeshed = 0;  // faces meshed again because their parameter-plane mesh folded
   std::size_t periodic_faces_copied = 0, periodic_pairs = 0;  // with a periodic match
   double periodic_max_mismatch = 0;  // max |T(x_lo) - x_hi| over the $Periodic pairs (a length)
   double periodic_model_size = 0;    // the match's model size (the diagonal of the shape's box)

@@ -376,11 +376,15 @@ class Builder {
     std::set<std::size_t> lowered;
     for (int round = 0; round < 5; ++round) {
       auto rep = facet_crossings();
+      if (rep.pairs == 0) {
+        surface_checked_clean_ = true;  // call_tetgen need not check the same facets again
+        break;
+      }
       std::set<std::size_t> hit;
       for (auto& pr : rep.all)
         for (int f : pr)
           if (facets_[f].kind == Facet::PyramidSide) hit.insert(by_apex.at(facets_[f].v[2]));
-      if (hit.empty()) break;
+      int moved = 0;
       for (std::size_t i : hit) {
         const auto& py = pyramids_[i];
         P3 c = 0.25 * (node(py[0]) + node(py[1]) + node(py[2]) + node(py[3])), a = node(py[4]);
@@ -394,7 +398,9 @@ class Builder {
         if (!model::element_quality(Shape::Pyramid, 1, X).valid) continue;
         out_.x[py[4]] = lower.x, out_.y[py[4]] = lower.y, out_.z[py[4]] = lower.z;
         lowered.insert(i);
+        ++moved;
       }
+      if (moved == 0) break;  // no pyramid can change what crosses: the same facets would be checked again
     }
     rep_.pyramids_lowered = lowered.size();
     if (!lowered.empty() && log_)
@@ -585,7 +591,7 @@ class Builder {
   void call_tetgen() {
     const std::string& sw = rep_.switches;
     auto t0 = std::chrono::steady_clock::now();
-    if (std::string c = crossings(false); !c.empty())
+    if (std::string c = surface_checked_clean_ ? std::string() : crossings(false); !c.empty())
       throw StageError("tet: the surface TetGen would fill crosses itself, so TetGen is not run (it cannot mesh "
                        "that, and crashes on some)." + c);
     try {
@@ -926,6 +932,7 @@ class Builder {
   std::vector<std::size_t> parent_;
   std::vector<P3> hole_points_;
   std::vector<std::array<std::uint32_t, 5>> pyramids_;
+  bool surface_checked_clean_ = false;  // lower_crossing_pyramids found no crossing facets
   std::vector<Facet> facets_;
   std::vector<Split> split_;
   detail::Plc plc_;
