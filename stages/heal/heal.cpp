@@ -36,8 +36,11 @@
 #include <BOPDS_MapOfPair.hxx>
 #include <BRepAlgoAPI_Cut.hxx>
 #include <BRepAlgoAPI_Fuse.hxx>
+#include <BRepAdaptor_Curve.hxx>
 #include <BRepBndLib.hxx>
+#include <BRepBuilderAPI_MakeEdge.hxx>
 #include <BRepBuilderAPI_MakeFace.hxx>
+#include <BRepBuilderAPI_MakeWire.hxx>
 #include <BRepBuilderAPI_MakeSolid.hxx>
 #include <BRepBuilderAPI_MakeVertex.hxx>
 #include <BRepBuilderAPI_Sewing.hxx>
@@ -53,6 +56,7 @@
 #include <Bnd_Box.hxx>
 #include <GProp_GProps.hxx>
 #include <Geom_Plane.hxx>
+#include <gp_Pln.hxx>
 #include <ShapeAnalysis_FreeBounds.hxx>
 #include <ShapeExtend_Status.hxx>
 #include <ShapeFix_Face.hxx>
@@ -66,6 +70,7 @@
 #include <Standard_Version.hxx>
 #include <TopExp.hxx>
 #include <TopExp_Explorer.hxx>
+#include <TopTools_HSequenceOfShape.hxx>
 #include <TopTools_IndexedMapOfShape.hxx>
 #include <TopoDS.hxx>
 #include <TopoDS_Compound.hxx>
@@ -79,6 +84,7 @@
 #include <cmath>
 #include <cstdio>
 #include <limits>
+#include <optional>
 #include <sstream>
 
 namespace meshflow::heal {
@@ -480,8 +486,8 @@ TopoDS_Shape fuse_step(const TopoDS_Shape& s, json& fixes, StageContext& ctx, co
 int free_edge_count(const TopoDS_Shape& s) { return (int)cad::occt::make_shape(s, "").free_edges().size(); }
 
 // The gaps between a shape's free edges: for each free edge, the distance from its midpoint to
-// the nearest free edge that shares no vertex with it (two faces' edges that should have been
-// sewn lie that far apart). Sorted, ascending; edges with no such neighbour give none.
+// the nearest free edge that shares no vertex with it or shares both (two faces' edges that
+// should have been sewn lie that far apart). Sorted, ascending; edges with no such neighbour give none.
 std::vector<double> free_edge_gaps(const TopoDS_Shape& s) {
   Shape sh = cad::occt::make_shape(s, "");
   const std::vector<int> fe = sh.free_edges();
@@ -500,11 +506,21 @@ std::vector<double> free_edge_gaps(const TopoDS_Shape& s) {
       const TopoDS_Edge& g = sh.impl().edge(fe[j]);
       TopoDS_Vertex c, d;
       TopExp::Vertices(g, c, d);
-      if (a.IsSame(c) || a.IsSame(d) || b.IsSame(c) || b.IsSame(d)) continue;
+      // neighbours along one opening share a vertex; two edges with the same two ends are two
+      // faces' copies of one boundary (a cascade passage's blade face and end face) apart by the gap
+      const bool same_ends = (a.IsSame(c) && b.IsSame(d)) || (a.IsSame(d) && b.IsSame(c));
+      if (!same_ends && (a.IsSame(c) || a.IsSame(d) || b.IsSame(c) || b.IsSame(d))) continue;
       if (std::isfinite(best)) {
         Bnd_Box q = boxes[i];
         q.Enlarge(best);
         if (q.IsOut(boxes[j])) continue;
+      }
+      if (same_ends) {  // the widest the two copies lie apart: sewing needs all of it
+        double far = 0;
+        for (int k = 1; k < 16; ++k)
+          far = std::max(far, sh.project_to_edge(fe[j], sh.edge_point(fe[i], r.lo + (r.hi - r.lo) * k / 16)).distance);
+        best = std::min(best, far);
+        continue;
       }
       BRepExtrema_DistShapeShape dist(mid, g);
       if (dist.IsDone() && dist.Value() < best) best = dist.Value();
@@ -520,7 +536,18 @@ struct Openings {
   std::vector<TopoDS_Wire> closed, open;
 };
 Openings openings_of(const TopoDS_Shape& s, double tol) {
-  ShapeAnalysis_FreeBounds fb(s, tol, Standard_True, Standard_True);  // closed sub-loops split out of longer chains
+  // ShapeAnalysis_FreeBounds reads the faces of a compound or shell: a lone face (a surface model
+  // of one face, which sewing returns as it is: a half hull whose whole rim lies on its
+  // centreplane) gave no openings at all
+  TopoDS_Shape faces = s;
+  if (s.ShapeType() == TopAbs_FACE) {
+    TopoDS_Compound c;
+    BRep_Builder b;
+    b.MakeCompound(c);
+    b.Add(c, s);
+    faces = c;
+  }
+  ShapeAnalysis_FreeBounds fb(faces, tol, Standard_True, Standard_True);  // closed sub-loops split out of longer chains
   Openings o;
   for (TopExp_Explorer ex(fb.GetClosedWires(), TopAbs_WIRE); ex.More(); ex.Next()) o.closed.push_back(TopoDS::Wire(ex.Current()));
   for (TopExp_Explorer ex(fb.GetOpenWires(), TopAbs_WIRE); ex.More(); ex.Next()) o.open.push_back(TopoDS::Wire(ex.Current()));
@@ -541,30 +568,137 @@ std::string describe_opening(const TopoDS_Wire& w, int i, double tol, bool close
          (!closed ? "not a closed loop" : fs.Found() ? "planar" : "not planar");
 }
 
+// The plane face closing loop w, when w is planar and the face is no face of s already (a loop
+// round a loose flat sheet is no opening to close).
+std::optional<TopoDS_Face> cap_of(const TopoDS_Wire& w, const TopoDS_Shape& s, double tol, Handle(Geom_Plane)& plane) {
+  BRepLib_FindSurface fs(w, tol, Standard_True);
+  if (!fs.Found()) return std::nullopt;
+  plane = Handle(Geom_Plane)::DownCast(fs.Surface());
+  if (plane.IsNull()) return std::nullopt;
+  BRepBuilderAPI_MakeFace mf(plane, w, Standard_True);
+  if (!mf.IsDone()) return std::nullopt;
+  ShapeFix_Face fix(mf.Face());
+  fix.Perform();
+  TopoDS_Face cap = fix.Face();
+  BRepExtrema_DistShapeShape on(BRepBuilderAPI_MakeVertex(cad::occt::interior_point(cap)).Vertex(), s);
+  if (on.IsDone() && on.Value() <= 10 * tol) return std::nullopt;
+  return cap;
+}
+
+// Closes an open chain of free edges lying in plane `pl` by the straight segment between its
+// ends, where both ends lie on another plane of the opening too: the segment is then where the
+// two planes meet, an edge two missing flat faces shared (a half hull's deck and centreplane
+// meet along its deck centreline; a block that lost two adjacent flat faces, along their
+// corner), and the cap on the other plane closes its own chain with the same segment, so the
+// two caps are sewn along it. Returns false (w unchanged) when no other plane holds both ends.
+bool close_on_crossing_plane(TopoDS_Wire& w, const gp_Pln& pl, const std::vector<gp_Pln>& planes, double tol) {
+  TopoDS_Vertex a, b;
+  TopExp::Vertices(w, a, b);
+  if (a.IsNull() || b.IsNull()) return false;
+  const gp_Pnt pa = BRep_Tool::Pnt(a), pb = BRep_Tool::Pnt(b);
+  if (pa.Distance(pb) <= tol) return false;
+  bool crossing = false;
+  for (auto& q : planes)
+    if (!q.Axis().Direction().IsParallel(pl.Axis().Direction(), 1e-9))
+      crossing = crossing || (q.Distance(pa) <= 10 * tol && q.Distance(pb) <= 10 * tol);
+  if (!crossing) return false;
+  BRepBuilderAPI_MakeWire mw(w);
+  mw.Add(BRepBuilderAPI_MakeEdge(b, a).Edge());
+  if (!mw.IsDone() || !BRep_Tool::IsClosed(mw.Wire())) return false;
+  w = mw.Wire();
+  return true;
+}
+
+// The planar closed loops inside openings that are not planar as a whole: a surface model that
+// lost several flat faces (an IGES export of a filleted cube keeps its 25 fillet and corner
+// faces, and the free edges round its six missing flat faces join into one chain of 28). Each
+// plane through two free edges meeting at a vertex is a candidate; the free edges lying in it
+// (within 10 x tol at 5 points each) are joined into wires, and each closed one is a loop to cap.
+std::vector<TopoDS_Wire> planar_subloops(const std::vector<TopoDS_Edge>& edges, double tol) {
+  auto on_plane = [&](const TopoDS_Edge& e, const gp_Pln& pl) {
+    BRepAdaptor_Curve c(e);
+    for (int k = 0; k <= 4; ++k)
+      if (pl.Distance(c.Value(c.FirstParameter() + (c.LastParameter() - c.FirstParameter()) * k / 4)) > 10 * tol) return false;
+    return true;
+  };
+  std::vector<gp_Pln> planes;
+  auto add_plane = [&](const TopoDS_Shape& edges_of) {
+    BRepLib_FindSurface fs(edges_of, tol, Standard_True);
+    if (!fs.Found()) return;
+    Handle(Geom_Plane) gp = Handle(Geom_Plane)::DownCast(fs.Surface());
+    if (gp.IsNull()) return;
+    const gp_Pln pl = gp->Pln();
+    for (auto& q : planes)
+      if (q.Axis().Direction().IsParallel(pl.Axis().Direction(), 1e-9) && q.Distance(pl.Location()) <= tol) return;
+    planes.push_back(pl);
+  };
+  for (auto& e : edges)
+    if (BRepAdaptor_Curve(e).GetType() != GeomAbs_Line) add_plane(e);  // a planar curve's own plane
+  for (size_t i = 0; i < edges.size(); ++i)
+    for (size_t j = i + 1; j < edges.size(); ++j) {
+      TopoDS_Vertex a, b, c, d;
+      TopExp::Vertices(edges[i], a, b);
+      TopExp::Vertices(edges[j], c, d);
+      if (!(a.IsSame(c) || a.IsSame(d) || b.IsSame(c) || b.IsSame(d))) continue;
+      TopoDS_Compound pair;
+      BRep_Builder bb;
+      bb.MakeCompound(pair);
+      bb.Add(pair, edges[i]);
+      bb.Add(pair, edges[j]);
+      add_plane(pair);
+    }
+  std::vector<TopoDS_Wire> loops;
+  std::set<std::vector<const void*>> taken;  // each loop once, by its edges
+  for (auto& pl : planes) {
+    Handle(TopTools_HSequenceOfShape) in = new TopTools_HSequenceOfShape, out;
+    for (auto& e : edges)
+      if (on_plane(e, pl)) in->Append(e);
+    if (in->Length() < 1) continue;
+    ShapeAnalysis_FreeBounds::ConnectEdgesToWires(in, tol, Standard_True, out);
+    for (int k = 1; !out.IsNull() && k <= out->Length(); ++k) {
+      TopoDS_Wire w = TopoDS::Wire(out->Value(k));
+      if (!BRep_Tool::IsClosed(w) && !close_on_crossing_plane(w, pl, planes, tol)) continue;
+      std::vector<const void*> key;
+      for (TopExp_Explorer ex(w, TopAbs_EDGE); ex.More(); ex.Next()) key.push_back(ex.Current().TShape().get());
+      std::sort(key.begin(), key.end());
+      if (taken.insert(key).second) loops.push_back(w);
+    }
+  }
+  return loops;
+}
+
 // Planar openings closed by a plane face each and sewn on (a blade's root and tip, a pipe's end
-// left open by a surface model). Returns the shape with the caps, or `s` when none was planar.
+// left open by a surface model), and the planar loops inside openings that are not planar as a
+// whole (planar_subloops). Returns the shape with the caps, or `s` when none was planar.
 TopoDS_Shape cap_planar_openings(const TopoDS_Shape& s, double tol, json& fixes, StageContext& ctx) {
   Openings o = openings_of(s, tol);
   std::vector<TopoDS_Face> caps;
   json made = json::array();
-  for (size_t i = 0; i < o.closed.size(); ++i) {
-    BRepLib_FindSurface fs(o.closed[i], tol, Standard_True);
-    if (!fs.Found()) continue;
-    Handle(Geom_Plane) plane = Handle(Geom_Plane)::DownCast(fs.Surface());
-    if (plane.IsNull()) continue;
-    BRepBuilderAPI_MakeFace mf(plane, o.closed[i], Standard_True);
-    if (!mf.IsDone()) continue;
-    ShapeFix_Face fix(mf.Face());
-    fix.Perform();
-    TopoDS_Face cap = fix.Face();
+  std::vector<TopoDS_Edge> rest;  // the edges of the openings no cap closed as a whole
+  auto add_cap = [&](const TopoDS_Face& cap, const Handle(Geom_Plane)& plane, const std::string& what) {
     gp_Pnt c = cad::occt::interior_point(cap);
-    // a loop around a face of the shape itself (a loose flat sheet) is no opening to close
-    BRepExtrema_DistShapeShape on(BRepBuilderAPI_MakeVertex(c).Vertex(), s);
-    if (on.IsDone() && on.Value() <= 10 * tol) continue;
-    caps.push_back(cap);
     gp_Dir n = plane->Position().Direction();
-    made.push_back({{"edges", describe_opening(o.closed[i], (int)i, tol, true)}, {"area", face_area(cap)},
-                    {"point", {c.X(), c.Y(), c.Z()}}, {"normal", {n.X(), n.Y(), n.Z()}}});
+    caps.push_back(cap);
+    made.push_back({{"edges", what}, {"area", face_area(cap)}, {"point", {c.X(), c.Y(), c.Z()}}, {"normal", {n.X(), n.Y(), n.Z()}}});
+  };
+  auto keep_edges = [&](const TopoDS_Wire& w) {
+    for (TopExp_Explorer ex(w, TopAbs_EDGE); ex.More(); ex.Next()) rest.push_back(TopoDS::Edge(ex.Current()));
+  };
+  for (size_t i = 0; i < o.closed.size(); ++i) {
+    Handle(Geom_Plane) plane;
+    if (auto cap = cap_of(o.closed[i], s, tol, plane))
+      add_cap(*cap, plane, describe_opening(o.closed[i], (int)i, tol, true));
+    else
+      keep_edges(o.closed[i]);
+  }
+  for (auto& w : o.open) keep_edges(w);
+  if (rest.size() >= 2) {
+    int k = 0;
+    for (auto& w : planar_subloops(rest, tol)) {
+      Handle(Geom_Plane) plane;
+      if (auto cap = cap_of(w, s, tol, plane))
+        add_cap(*cap, plane, "a planar loop of a larger opening: " + describe_opening(w, k, tol, true)), ++k;
+    }
   }
   if (caps.empty()) return s;
   BRepBuilderAPI_Sewing sw(tol, Standard_True, Standard_True, Standard_True, Standard_False);
@@ -983,7 +1117,7 @@ void run(StageContext& ctx) {
 }
 
 StageRegistrar reg({.kind = "heal",
-                    .version = 4,  // 3: also writes the CAD reference of the mesh contract; 4: lowers a tolerance that opens a closed input, sews at measured gaps, caps planar openings, tags a curved far field, drops enclosed regions
+                    .version = 5,  // 3: also writes the CAD reference of the mesh contract; 4: lowers a tolerance that opens a closed input, sews at measured gaps, caps planar openings, tags a curved far field, drops enclosed regions; 5: gaps measured along edges with the same ends, planar loops inside larger openings capped (closed along two planes' crossing), a lone face's openings
                     .summary = "sew, fix and close the CAD into a watertight fluid solid; refuse what cannot be repaired",
                     .libraries = {"OCCT " OCC_VERSION_COMPLETE},
                     .needs = {"shape"},

@@ -19,8 +19,11 @@
 #include <TopExp_Explorer.hxx>
 #include <TopoDS.hxx>
 #include <TopoDS_Compound.hxx>
+#include <Geom_BezierSurface.hxx>
+#include <TColgp_Array2OfPnt.hxx>
 #include <gp_Trsf.hxx>
 
+#include <cmath>
 #include <fstream>
 #include <iterator>
 
@@ -323,5 +326,74 @@ TEST_CASE("heal: a half sphere around a half body cut into its flat face: sphere
   REQUIRE(far.size() >= 1);
   for (int f : far) CHECK(s.face_surface_type(f) == "sphere");
   CHECK(s.faces_with_tag(meshflow::cad::Tag::symmetry).size() == 1);
+  std::filesystem::remove_all(d);
+}
+
+// A box that lost two adjacent flat faces: the edge they shared is gone, so neither opening is a
+// closed loop and the free edges form one chain of 6 round both. Each plane's free edges are
+// closed by the segment where the two planes meet, both caps share it, and the box is closed.
+TEST_CASE("heal: a box missing two adjacent faces gets both planes capped along their crossing") {
+  auto f = box_faces();  // OCCT's order: x=0, x=1, y=0, y=1, z=0, z=1
+  std::vector<TopoDS_Shape> kept{f[0], f[1], f[3], f[4]};  // no y=0, no z=1
+  std::filesystem::path d;
+  auto h = heal_on(compound(kept), nlohmann::json::object(), d);
+  h->run();
+  Shape s = Shape::load(h->artifact("shape").path);
+  CHECK(s.watertight());
+  CHECK(s.volume() == doctest::Approx(1.0).epsilon(1e-6));
+  auto caps = h->stats_["fixes"]["planar_holes_capped"];
+  REQUIRE(caps.size() == 2);
+  for (auto& c : caps) {
+    CHECK(c["area"].get<double>() == doctest::Approx(1.0).epsilon(1e-6));
+    CHECK(c["edges"].get<std::string>().find("a planar loop of a larger opening") != std::string::npos);
+  }
+  std::filesystem::remove_all(d);
+}
+
+// One face whose whole rim lies on two planes (a quarter of a sphere's surface, cut by z = 0
+// and y = 0; a half hull's rim lies on its deck and centreplane the same way): a lone face, whose
+// openings OCCT finds only in a compound, capped by two half discs along their shared diameter.
+TEST_CASE("heal: a lone face with its rim on two planes is closed by a cap on each") {
+  TopoDS_Shape ball = BRepPrimAPI_MakeSphere(1.0).Shape();
+  TopoDS_Shape quarter = BRepAlgoAPI_Common(ball, BRepPrimAPI_MakeBox(gp_Pnt(-2, 0, 0), 4, 2, 2).Shape()).Shape();
+  TopoDS_Shape skin;  // its spherical face only
+  for (TopExp_Explorer ex(quarter, TopAbs_FACE); ex.More(); ex.Next())
+    if (occt::make_shape(ex.Current(), "m").face_surface_type(0) == "sphere") skin = ex.Current();
+  REQUIRE(!skin.IsNull());
+  std::filesystem::path d;
+  auto h = heal_on(skin, nlohmann::json::object(), d);
+  h->run();
+  Shape s = Shape::load(h->artifact("shape").path);
+  CHECK(s.watertight());
+  CHECK(s.volume() == doctest::Approx(M_PI / 3).epsilon(1e-3));
+  auto caps = h->stats_["fixes"]["planar_holes_capped"];
+  REQUIRE(caps.size() == 2);
+  for (auto& c : caps) CHECK(c["area"].get<double>() == doctest::Approx(M_PI / 2).epsilon(1e-3));
+  std::filesystem::remove_all(d);
+}
+
+// Two faces' copies of one boundary with the same two ends, 1e-4 apart in the middle (a top face
+// whose edges bulge off the box's straight edges): the gap is measured along them, and the box
+// is sewn with it.
+TEST_CASE("heal: edges with the same ends a little apart along their length are sewn at the gap measured along them") {
+  auto f = box_faces();
+  TColgp_Array2OfPnt poles(1, 3, 1, 3);
+  for (int i = 1; i <= 3; ++i)
+    for (int j = 1; j <= 3; ++j) {
+      const bool mid_edge = (i == 2) != (j == 2);  // the middle pole of each side
+      poles(i, j) = gp_Pnt(0.5 * (i - 1), 0.5 * (j - 1), 1.0 + (mid_edge ? 2e-4 : 0.0));
+    }
+  Handle(Geom_BezierSurface) top = new Geom_BezierSurface(poles);
+  f[5] = BRepBuilderAPI_MakeFace(top, 1e-7).Face();
+  std::filesystem::path d;
+  auto h = heal_on(compound(f), nlohmann::json::object(), d);
+  h->run();
+  Shape s = Shape::load(h->artifact("shape").path);
+  CHECK(s.watertight());
+  CHECK(s.num_faces() == 6);
+  auto g = h->stats_["fixes"]["sewing_gap_measured"];
+  REQUIRE(g.is_object());
+  CHECK(g["gap"].get<double>() == doctest::Approx(1e-4).epsilon(0.1));
+  CHECK(g["free_edges_after"] == 0);
   std::filesystem::remove_all(d);
 }
