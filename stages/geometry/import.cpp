@@ -12,6 +12,7 @@
 #include <IGESData_GlobalSection.hxx>
 #include <IGESData_IGESModel.hxx>
 #include <Interface_Static.hxx>
+#include <UnitsMethods.hxx>
 #include <STEPControl_Reader.hxx>
 #include <StepData_StepModel.hxx>
 #include <Standard_Failure.hxx>
@@ -83,14 +84,27 @@ TopoDS_Shape read_step(const fs::path& p, std::string& units, const Log& log) {
 }
 
 TopoDS_Shape read_iges(const fs::path& p, std::string& units, const Log& log) {
-  IGESControl_Reader r;
-  if (r.ReadFile(p.c_str()) != IFSelect_RetDone)
-    throw StageError("cannot read '" + p.string() + "' as IGES: the file is not valid IGES; export it again");
-  int flag = r.IGESModel()->GlobalSection().UnitFlag();
+  auto read = [&](IGESControl_Reader& r) {
+    if (r.ReadFile(p.c_str()) != IFSelect_RetDone)
+      throw StageError("cannot read '" + p.string() + "' as IGES: the file is not valid IGES; export it again");
+  };
+  int flag = 0;
+  {
+    IGESControl_Reader probe;
+    read(probe);
+    flag = probe.IGESModel()->GlobalSection().UnitFlag();
+  }
   static const char* by_flag[] = {"", "in", "mm", "", "ft", "mi", "m", "km", "mil", "um", "cm", "uin"};
   units = flag >= 1 && flag <= 11 && *by_flag[flag] ? by_flag[flag] : "mm";
   log("IGES unit flag " + std::to_string(flag) + " -> " + units);
+  // Keep the file's unit. OCCT takes its working unit into the model when the file is read, from
+  // process-wide settings: set to the file's unit before reading (not after, which the next
+  // import in the same process would see: init's preflight read a file in m 1000 times smaller
+  // than a run from a fresh process did).
   Interface_Static::SetCVal("xstep.cascade.unit", occt_unit(units));
+  UnitsMethods::SetCasCadeLengthUnit(unit_mm(units));
+  IGESControl_Reader r;
+  read(r);
   r.TransferRoots();
   if (r.NbShapes() == 0) throw StageError("IGES file '" + p.string() + "' contains no transferable shape");
   return r.OneShape();

@@ -68,7 +68,7 @@ void run(StageContext& ctx) {
 }
 
 StageRegistrar reg({.kind = "step",
-                    .version = 1,
+                    .version = 2,  // 2: IGES read in its own unit whatever an earlier import in the process set
                     .summary = "import a STEP/IGES/BREP file as a shape, keeping its units",
                     .libraries = {"OCCT " OCC_VERSION_COMPLETE},
                     .produces = {{"shape", "shape"}},

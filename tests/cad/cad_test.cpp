@@ -323,3 +323,30 @@ TEST_CASE("IGES: the paper's wing exported as IGES (in mm) and imported by the s
   }
   fs::remove_all(dir);
 }
+
+// OCCT takes its working unit into an IGES model when the file is read, from process-wide
+// settings that every import changes: read after an import in another unit (init reads the file,
+// then its preflight's stages run in processes forked from it), a file in metres came in 1000
+// times smaller than from a fresh process. The step kind sets the file's own unit before reading.
+TEST_CASE("IGES: a file in metres has the same size whatever was imported before it in the process") {
+  const fs::path real = fs::path(MESHFLOW_SOURCE_DIR) / "bench/corpus/real";
+  fs::path data = MESHFLOW_DATA_DIR;
+  if (!fs::exists(data / "wingtip/3d_bl_wing.stp")) return;
+  auto import = [&](const fs::path& dir, const std::string& file) {
+    TestContext c("step", {{"file", file}}, {}, dir);
+    c.run();
+    return Shape::load(c.artifact("shape").path);
+  };
+  const Shape first = import(real, "wing_surfaces_5m.iges");
+  import(data, "wingtip/3d_bl_wing.stp");  // an import in mm
+  const Shape again = import(real, "wing_surfaces_5m.iges");
+  CHECK(first.units() == "m");
+  CHECK(again.units() == "m");
+  auto a = first.box(), b = again.box();
+  const double side = a.hi.x - a.lo.x;
+  CHECK(side > 0.1);
+  CHECK(side < 10);  // metres, not millimetre numbers
+  CHECK(b.hi.x - b.lo.x == doctest::Approx(side).epsilon(1e-9));
+  CHECK(b.hi.y - b.lo.y == doctest::Approx(a.hi.y - a.lo.y).epsilon(1e-9));
+  CHECK(b.hi.z - b.lo.z == doctest::Approx(a.hi.z - a.lo.z).epsilon(1e-9));
+}
