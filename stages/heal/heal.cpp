@@ -585,25 +585,60 @@ std::optional<TopoDS_Face> cap_of(const TopoDS_Wire& w, const TopoDS_Shape& s, d
   return cap;
 }
 
+// The point where three planes meet, or nothing when two of them are (nearly) parallel.
+std::optional<gp_Pnt> plane_corner(const gp_Pln& p1, const gp_Pln& p2, const gp_Pln& p3) {
+  double a[3][4];
+  p1.Coefficients(a[0][0], a[0][1], a[0][2], a[0][3]);
+  p2.Coefficients(a[1][0], a[1][1], a[1][2], a[1][3]);
+  p3.Coefficients(a[2][0], a[2][1], a[2][2], a[2][3]);
+  auto det = [&](int c0, int c1, int c2) {
+    return a[0][c0] * (a[1][c1] * a[2][c2] - a[1][c2] * a[2][c1]) - a[0][c1] * (a[1][c0] * a[2][c2] - a[1][c2] * a[2][c0]) +
+           a[0][c2] * (a[1][c0] * a[2][c1] - a[1][c1] * a[2][c0]);
+  };
+  const double d = det(0, 1, 2);
+  if (std::abs(d) < 1e-6) return std::nullopt;  // unit normals: |d| is the volume they span
+  // a x = -coef: Cramer's rule with the right-hand side in column 3 (negated)
+  return gp_Pnt(-det(3, 1, 2) / d, -det(0, 3, 2) / d, -det(0, 1, 3) / d);
+}
+
 // Closes an open chain of free edges lying in plane `pl` by the straight segment between its
 // ends, where both ends lie on another plane of the opening too: the segment is then where the
 // two planes meet, an edge two missing flat faces shared (a half hull's deck and centreplane
 // meet along its deck centreline; a block that lost two adjacent flat faces, along their
 // corner), and the cap on the other plane closes its own chain with the same segment, so the
-// two caps are sewn along it. Returns false (w unchanged) when no other plane holds both ends.
+// two caps are sewn along it; or, with its ends on two other planes, through the corner the
+// three planes share. Returns false (w unchanged) when neither closes it.
 bool close_on_crossing_plane(TopoDS_Wire& w, const gp_Pln& pl, const std::vector<gp_Pln>& planes, double tol) {
   TopoDS_Vertex a, b;
   TopExp::Vertices(w, a, b);
   if (a.IsNull() || b.IsNull()) return false;
   const gp_Pnt pa = BRep_Tool::Pnt(a), pb = BRep_Tool::Pnt(b);
   if (pa.Distance(pb) <= tol) return false;
-  bool crossing = false;
+  std::vector<const gp_Pln*> at_a, at_b;  // other planes through each end
   for (auto& q : planes)
-    if (!q.Axis().Direction().IsParallel(pl.Axis().Direction(), 1e-9))
-      crossing = crossing || (q.Distance(pa) <= 10 * tol && q.Distance(pb) <= 10 * tol);
-  if (!crossing) return false;
+    if (!q.Axis().Direction().IsParallel(pl.Axis().Direction(), 1e-9)) {
+      if (q.Distance(pa) <= 10 * tol) at_a.push_back(&q);
+      if (q.Distance(pb) <= 10 * tol) at_b.push_back(&q);
+    }
   BRepBuilderAPI_MakeWire mw(w);
-  mw.Add(BRepBuilderAPI_MakeEdge(b, a).Edge());
+  bool crossing = false;
+  for (auto* q : at_a) crossing = crossing || std::find(at_b.begin(), at_b.end(), q) != at_b.end();
+  if (crossing) {
+    mw.Add(BRepBuilderAPI_MakeEdge(b, a).Edge());
+  } else {
+    // the ends on two other planes (a hull's keel line ends on its deck at the bow and on its
+    // transom at the stern): closed through the corner where the three planes meet, each segment
+    // on one plane's crossing with `pl`
+    std::optional<gp_Pnt> corner;
+    for (auto* qa : at_a)
+      for (auto* qb : at_b)
+        if (!corner && qa != qb)
+          if (auto c = plane_corner(pl, *qa, *qb); c && c->Distance(pa) > tol && c->Distance(pb) > tol) corner = c;
+    if (!corner) return false;
+    TopoDS_Vertex vc = BRepBuilderAPI_MakeVertex(*corner).Vertex();
+    mw.Add(BRepBuilderAPI_MakeEdge(b, vc).Edge());
+    mw.Add(BRepBuilderAPI_MakeEdge(vc, a).Edge());
+  }
   if (!mw.IsDone() || !BRep_Tool::IsClosed(mw.Wire())) return false;
   w = mw.Wire();
   return true;
@@ -705,7 +740,7 @@ TopoDS_Shape cap_planar_openings(const TopoDS_Shape& s, double tol, json& fixes,
   sw.Add(s);
   for (auto& f : caps) sw.Add(f);
   sw.Perform();
-  fixes["planar_holes_capped"] = made;
+  for (auto& m : made) fixes["planar_holes_capped"].push_back(m);
   ctx.log("heal: " + std::to_string(caps.size()) + " planar opening(s) closed by a plane face each (stats.fixes.planar_holes_capped)");
   return sw.SewedShape();
 }
@@ -776,7 +811,24 @@ TopoDS_Shape repair_closed(const TopoDS_Shape& input, bool input_closed, const O
       }
     }
   }
-  if (o.cap_holes) s = cap_planar_openings(s, tol, fixes, ctx);
+  // Caps sewn on can leave a loop planar and closed that was not before (an outline that ran
+  // round a dropped flat face and its neighbours' now capped ones): up to 3 rounds, while each
+  // closes free edges. A round is kept only if its caps overlap nothing: no edge of three faces,
+  // and, once closed, no face crossing another (a filleted block's missing flat faces closed
+  // through the sharp corner its fillets round off would cut through the fillets).
+  for (int round = 0; o.cap_holes && round < 3 && fe > 0; ++round) {
+    json f = json::object();
+    TopoDS_Shape capped = cap_planar_openings(s, tol, f, ctx);
+    const Shape cs = cad::occt::make_shape(capped, "");
+    const int n = static_cast<int>(cs.free_edges().size());
+    if (n >= fe) break;
+    if (!cs.multiple_edges().empty() || (n == 0 && self_interference(cs, 4, false, 0).pairs > 0)) {
+      ctx.log("heal: planar caps not kept: they overlap the model (an edge of three faces, or a face crossing another)");
+      break;
+    }
+    for (auto& c : f["planar_holes_capped"]) fixes["planar_holes_capped"].push_back(c);
+    s = capped, fe = n;
+  }
   return s;
 }
 

@@ -2,13 +2,14 @@
 # The cheapest files of the real third-party corpus (bench/corpus/real) as `make corpus` runs
 # them: `meshflow init` (its preflight included) then `meshflow run`, no hand edits; each must end
 # with exit 0 and a final mesh that is valid to us (meshflow contract), and none flagged by Gmsh's
-# or VTK's own Jacobian checks.
+# or VTK's own Jacobian checks. wigley_hull is one face heal closes (its deck and centreplane
+# capped along their crossing); wing_surfaces_5m an IGES file in metres.
 #
 #   tests/corpus/cheapest_test.sh PROJECT_ROOT BUILD
 set -euo pipefail
 root="$1"
 build="$2"
-files=(cylinder_in_channel.iges ring.brep bl3d_5.brep)
+files=(cylinder_in_channel.iges ring.brep bl3d_5.brep wigley_hull.step wing_surfaces_5m.iges)
 results="$(mktemp -d /tmp/meshflow-cheapest.XXXXXX)"
 trap 'rm -rf "$results"' EXIT
 args=()

@@ -350,6 +350,22 @@ TEST_CASE("heal: a box missing two adjacent faces gets both planes capped along 
   std::filesystem::remove_all(d);
 }
 
+// Three faces missing round one corner (a hull without deck, centreplane and transom): each
+// plane's chain of free edges ends on the two other planes, and is closed through the corner the
+// three share.
+TEST_CASE("heal: a box missing three faces round a corner gets them capped through the corner") {
+  auto f = box_faces();  // OCCT's order: x=0, x=1, y=0, y=1, z=0, z=1
+  std::vector<TopoDS_Shape> kept{f[0], f[3], f[4]};  // no x=1, y=0, z=1
+  std::filesystem::path d;
+  auto h = heal_on(compound(kept), nlohmann::json::object(), d);
+  h->run();
+  Shape s = Shape::load(h->artifact("shape").path);
+  CHECK(s.watertight());
+  CHECK(s.volume() == doctest::Approx(1.0).epsilon(1e-6));
+  CHECK(h->stats_["fixes"]["planar_holes_capped"].size() == 3);
+  std::filesystem::remove_all(d);
+}
+
 // One face whose whole rim lies on two planes (a quarter of a sphere's surface, cut by z = 0
 // and y = 0; a half hull's rim lies on its deck and centreplane the same way): a lone face, whose
 // openings OCCT finds only in a compound, capped by two half discs along their shared diameter.

@@ -111,6 +111,7 @@ TEST_CASE("wing_body.yaml (DLR-F6) to the end: valid conforming linear hybrid me
   for (auto& s : rep2["stages"]) {
     const std::string name = s["name"];
     const bool reran = name == "curve" || name == "optimise" || name == "split";
+    INFO(name << ": key " << s.value("key", std::string()));
     CHECK(s["status"] == (reran ? "ran" : "cached"));
   }
   for (auto& [type, nb] : mfcheck::gmsh_flags(dir / "out/mesh.msh")) {
