@@ -813,17 +813,18 @@ TopoDS_Shape repair_closed(const TopoDS_Shape& input, bool input_closed, const O
   }
   // Caps sewn on can leave a loop planar and closed that was not before (an outline that ran
   // round a dropped flat face and its neighbours' now capped ones): up to 3 rounds, while each
-  // closes free edges. A round is kept only if its caps overlap nothing: no edge of three faces,
-  // and, once closed, no face crossing another (a filleted block's missing flat faces closed
-  // through the sharp corner its fillets round off would cut through the fillets).
+  // closes free edges. A round is kept only if its caps make no edge of three faces (a cap over
+  // a loop some faces already close); caps that cut through the model (a filleted block's
+  // missing flat faces closed through the sharp corner its fillets round off) are left to the
+  // self-intersection check below, which refuses them naming the faces.
   for (int round = 0; o.cap_holes && round < 3 && fe > 0; ++round) {
     json f = json::object();
     TopoDS_Shape capped = cap_planar_openings(s, tol, f, ctx);
     const Shape cs = cad::occt::make_shape(capped, "");
     const int n = static_cast<int>(cs.free_edges().size());
     if (n >= fe) break;
-    if (!cs.multiple_edges().empty() || (n == 0 && self_interference(cs, 4, false, 0).pairs > 0)) {
-      ctx.log("heal: planar caps not kept: they overlap the model (an edge of three faces, or a face crossing another)");
+    if (const std::size_t multiple = cs.multiple_edges().size()) {
+      ctx.log("heal: planar caps not kept: they overlap the model (" + std::to_string(multiple) + " edge(s) of three faces)");
       break;
     }
     for (auto& c : f["planar_holes_capped"]) fixes["planar_holes_capped"].push_back(c);
@@ -1124,7 +1125,12 @@ void run(StageContext& ctx) {
       throw StageError(src + ": the fluid solid intersects itself (" + std::to_string(si.pairs) +
                        " interference(s) between non-adjacent faces, edges or vertices that sewing and the boolean "
                        "operations did not resolve)" + (ids.empty() ? std::string(":") : "; faces " + ids + ":") + m +
-                       "\nRepair the CAD in its source system (the named faces cross each other).");
+                       "\nRepair the CAD in its source system (the named faces cross each other)." +
+                       (fixes.contains("planar_holes_capped")
+                            ? " Heal capped planar openings of this surface model (stats.fixes.planar_holes_capped): "
+                              "a cap can cut through the model where the missing face was not flat; "
+                              "cap_planar_holes: false shows the openings instead."
+                            : ""));
     }
   }
   const double volume = out.volume();
