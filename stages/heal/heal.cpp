@@ -645,8 +645,8 @@ bool close_on_crossing_plane(TopoDS_Wire& w, const gp_Pln& pl, const std::vector
 }
 
 // The planar closed loops inside openings that are not planar as a whole: a surface model that
-// lost several flat faces (an IGES export of a filleted cube keeps its 25 fillet and corner
-// faces, and the free edges round its six missing flat faces join into one chain of 28). Each
+// lost several flat faces (an export that dropped a block's flat faces: the free edges round
+// them join into one chain that is not planar as a whole). Each
 // plane through two free edges meeting at a vertex is a candidate; the free edges lying in it
 // (within 10 x tol at 5 points each) are joined into wires, and each closed one is a loop to cap.
 std::vector<TopoDS_Wire> planar_subloops(const std::vector<TopoDS_Edge>& edges, double tol) {
