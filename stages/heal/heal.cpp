@@ -538,7 +538,7 @@ struct Openings {
 Openings openings_of(const TopoDS_Shape& s, double tol) {
   // ShapeAnalysis_FreeBounds reads the faces of a compound or shell: a lone face (a surface model
   // of one face, which sewing returns as it is: a half hull whose whole rim lies on its
-  // centreplane) gave no openings at all
+  // centreplane and deck) gave no openings at all
   TopoDS_Shape faces = s;
   if (s.ShapeType() == TopAbs_FACE) {
     TopoDS_Compound c;
