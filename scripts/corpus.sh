@@ -45,6 +45,8 @@ valid=0
 for input in "${inputs[@]}"; do
   name="$(basename "${input%.*}")"
   [[ "$input" == */bench/corpus/real/* ]] && name="real/$name"
+  # two files of one name in different formats (a blade as .igs and .stp): the second keeps its extension
+  [ -e "$scratch/$name" ] && name="${name}.${input##*.}"
   dir="$scratch/$name"
   mkdir -p "$dir"
   decided="given"
