@@ -63,6 +63,33 @@ std::unique_ptr<TestContext> heal_on(const TopoDS_Shape& s, nlohmann::json param
   occt::make_shape(s, "m").save(a.path);
   return std::make_unique<TestContext>("heal", params, std::vector<meshflow::Artifact>{a});
 }
+// Heals the unit box's faces `f` (some missing): the closed box's planar caps
+// (stats.fixes.planar_holes_capped).
+nlohmann::json capped_unit_box(const std::vector<TopoDS_Shape>& f) {
+  std::filesystem::path d;
+  auto h = heal_on(compound(f), nlohmann::json::object(), d);
+  h->run();
+  Shape s = Shape::load(h->artifact("shape").path);
+  CHECK(s.watertight());
+  CHECK(s.volume() == doctest::Approx(1.0).epsilon(1e-6));
+  nlohmann::json caps = h->stats_["fixes"]["planar_holes_capped"];
+  std::filesystem::remove_all(d);
+  return caps;
+}
+// Heals the box faces `f`, whose gap sewing must measure and close: the closed box's stats.
+nlohmann::json sewn_at_measured_gap(const std::vector<TopoDS_Shape>& f) {
+  std::filesystem::path d;
+  auto h = heal_on(compound(f), nlohmann::json::object(), d);
+  h->run();
+  Shape s = Shape::load(h->artifact("shape").path);
+  CHECK(s.watertight());
+  CHECK(s.num_faces() == 6);
+  nlohmann::json st = h->stats_;
+  REQUIRE(st["fixes"]["sewing_gap_measured"].is_object());
+  CHECK(st["fixes"]["sewing_gap_measured"]["free_edges_after"] == 0);
+  std::filesystem::remove_all(d);
+  return st;
+}
 }  // namespace
 
 TEST_CASE("defect: a face moved by 1e-5 is sewn with tolerance 1e-4, and with 1e-7 at the gap it measures") {
@@ -85,7 +112,6 @@ TEST_CASE("defect: a face moved by 1e-5 is sewn with tolerance 1e-4, and with 1e
   strict->run();
   CHECK(Shape::load(strict->artifact("shape").path).watertight());
   CHECK(strict->stats_["fixes"]["sewing_gap_measured"]["gap"].get<double>() == doctest::Approx(1e-5).epsilon(0.05));
-  std::filesystem::remove_all(d1);
   std::filesystem::remove_all(d2);
 }
 
@@ -219,14 +245,10 @@ TEST_CASE("heal: a body of several solids (sharing a face, overlapping) is fused
 TEST_CASE("heal: a box missing a face (a surface model) gets its planar opening capped, or is refused with caps off") {
   auto f = box_faces();
   f.pop_back();
-  std::filesystem::path d1, d2;
-  auto h = heal_on(compound(f), nlohmann::json::object(), d1);
-  h->run();
-  Shape s = Shape::load(h->artifact("shape").path);
-  CHECK(s.watertight());
-  CHECK(s.volume() == doctest::Approx(1.0).epsilon(1e-6));
-  REQUIRE(h->stats_["fixes"]["planar_holes_capped"].size() == 1);
-  CHECK(h->stats_["fixes"]["planar_holes_capped"][0]["area"].get<double>() == doctest::Approx(1.0).epsilon(1e-6));
+  const nlohmann::json caps = capped_unit_box(f);
+  REQUIRE(caps.size() == 1);
+  CHECK(caps[0]["area"].get<double>() == doctest::Approx(1.0).epsilon(1e-6));
+  std::filesystem::path d2;
   auto off = heal_on(compound(f), {{"cap_planar_holes", false}}, d2);
   try {
     off->run();
@@ -238,7 +260,6 @@ TEST_CASE("heal: a box missing a face (a surface model) gets its planar opening 
     CHECK(m.find("planar") != std::string::npos);
     CHECK(m.find("cap_planar_holes: true") != std::string::npos);
   }
-  std::filesystem::remove_all(d1);
   std::filesystem::remove_all(d2);
 }
 
@@ -258,18 +279,9 @@ TEST_CASE("heal: faces a measured gap apart are sewn with that gap, a gap above 
   gp_Trsf t;
   t.SetTranslation(gp_Vec(0, 0, 1e-3));
   f[5] = BRepBuilderAPI_Transform(f[5], t, Standard_True).Shape();
-  std::filesystem::path d;
-  auto h = heal_on(compound(f), nlohmann::json::object(), d);
-  h->run();
-  Shape s = Shape::load(h->artifact("shape").path);
-  CHECK(s.watertight());
-  CHECK(s.num_faces() == 6);
-  auto g = h->stats_["fixes"]["sewing_gap_measured"];
-  REQUIRE(g.is_object());
-  CHECK(g["gap"].get<double>() == doctest::Approx(1e-3).epsilon(0.05));
-  CHECK(g["free_edges_after"] == 0);
-  CHECK(h->stats_["tolerance"].get<double>() == doctest::Approx(1.5e-3).epsilon(0.05));
-  std::filesystem::remove_all(d);
+  const nlohmann::json st = sewn_at_measured_gap(f);
+  CHECK(st["fixes"]["sewing_gap_measured"]["gap"].get<double>() == doctest::Approx(1e-3).epsilon(0.05));
+  CHECK(st["tolerance"].get<double>() == doctest::Approx(1.5e-3).epsilon(0.05));
 }
 
 TEST_CASE("heal: a hollow body in a box: the cavity is no fluid, and a domain in two pieces keeps the larger, with a note") {
@@ -334,20 +346,12 @@ TEST_CASE("heal: a half sphere around a half body cut into its flat face: sphere
 // closed by the segment where the two planes meet, both caps share it, and the box is closed.
 TEST_CASE("heal: a box missing two adjacent faces gets both planes capped along their crossing") {
   auto f = box_faces();  // OCCT's order: x=0, x=1, y=0, y=1, z=0, z=1
-  std::vector<TopoDS_Shape> kept{f[0], f[1], f[3], f[4]};  // no y=0, no z=1
-  std::filesystem::path d;
-  auto h = heal_on(compound(kept), nlohmann::json::object(), d);
-  h->run();
-  Shape s = Shape::load(h->artifact("shape").path);
-  CHECK(s.watertight());
-  CHECK(s.volume() == doctest::Approx(1.0).epsilon(1e-6));
-  auto caps = h->stats_["fixes"]["planar_holes_capped"];
+  const nlohmann::json caps = capped_unit_box({f[0], f[1], f[3], f[4]});  // no y=0, no z=1
   REQUIRE(caps.size() == 2);
   for (auto& c : caps) {
     CHECK(c["area"].get<double>() == doctest::Approx(1.0).epsilon(1e-6));
     CHECK(c["edges"].get<std::string>().find("a planar loop of a larger opening") != std::string::npos);
   }
-  std::filesystem::remove_all(d);
 }
 
 // Three faces missing round one corner (a hull without deck, centreplane and transom): each
@@ -355,15 +359,7 @@ TEST_CASE("heal: a box missing two adjacent faces gets both planes capped along 
 // three share.
 TEST_CASE("heal: a box missing three faces round a corner gets them capped through the corner") {
   auto f = box_faces();  // OCCT's order: x=0, x=1, y=0, y=1, z=0, z=1
-  std::vector<TopoDS_Shape> kept{f[0], f[3], f[4]};  // no x=1, y=0, z=1
-  std::filesystem::path d;
-  auto h = heal_on(compound(kept), nlohmann::json::object(), d);
-  h->run();
-  Shape s = Shape::load(h->artifact("shape").path);
-  CHECK(s.watertight());
-  CHECK(s.volume() == doctest::Approx(1.0).epsilon(1e-6));
-  CHECK(h->stats_["fixes"]["planar_holes_capped"].size() == 3);
-  std::filesystem::remove_all(d);
+  CHECK(capped_unit_box({f[0], f[3], f[4]}).size() == 3);  // no x=1, y=0, z=1
 }
 
 // One face whose whole rim lies on two planes (a quarter of a sphere's surface, cut by z = 0
@@ -401,15 +397,6 @@ TEST_CASE("heal: edges with the same ends a little apart along their length are 
     }
   Handle(Geom_BezierSurface) top = new Geom_BezierSurface(poles);
   f[5] = BRepBuilderAPI_MakeFace(top, 1e-7).Face();
-  std::filesystem::path d;
-  auto h = heal_on(compound(f), nlohmann::json::object(), d);
-  h->run();
-  Shape s = Shape::load(h->artifact("shape").path);
-  CHECK(s.watertight());
-  CHECK(s.num_faces() == 6);
-  auto g = h->stats_["fixes"]["sewing_gap_measured"];
-  REQUIRE(g.is_object());
-  CHECK(g["gap"].get<double>() == doctest::Approx(1e-4).epsilon(0.1));
-  CHECK(g["free_edges_after"] == 0);
-  std::filesystem::remove_all(d);
+  const nlohmann::json st = sewn_at_measured_gap(f);
+  CHECK(st["fixes"]["sewing_gap_measured"]["gap"].get<double>() == doctest::Approx(1e-4).epsilon(0.1));
 }
