@@ -282,7 +282,7 @@ TEST_CASE("contract: the corpus sphere healed without sewing is cut out and cove
   // "1 face(s) of the healed CAD without any boundary element"); the face mesher now meshes
   // poles and seams, so the same run keeps every clause and says how much of the face it covers.
   const fs::path data = MESHFLOW_DATA_DIR;
-  if (!fs::exists(data / "corpus/sphere.step")) return;
+  REQUIRE(fs::exists(data / "corpus/sphere.step"));
   fs::path d = mftest::temp_dir("contract-sphere");
   mftest::write_text(d / "w.yaml", "meshflow: 1\nname: sphere-nosew\nstages:\n"
                                    "  geometry: {kind: step, with: {file: " + (data / "corpus/sphere.step").string() + "}}\n"
@@ -306,7 +306,7 @@ TEST_CASE("contract: the corpus sphere healed without sewing is cut out and cove
 
 TEST_CASE("contract: meshflow contract FILE checks a mesh another tool wrote (Gmsh, Nektar++) and exits 3 when it breaks a clause") {
   const fs::path data = fs::path(MESHFLOW_DATA_DIR) / "highorder";
-  if (!fs::exists(data / "v4.1_cube_all.msh")) return;
+  REQUIRE(fs::exists(data / "v4.1_cube_all.msh"));
   const std::string exe = MESHFLOW_EXE;
   // Gmsh's mixed linear cube (hex, tet, prism, pyramid) keeps every clause that needs no CAD
   auto ok = mftest::sh(exe + " contract " + (data / "v4.1_cube_all.msh").string() + " 2>&1");

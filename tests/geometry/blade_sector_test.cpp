@@ -132,7 +132,7 @@ double max_distance(const Shape& s, const std::vector<int>& faces, const std::ve
 }  // namespace
 
 TEST_CASE("blade_sector: Rotor 67 passage, tags, blade through the file's points, exact periodic sides") {
-  if (!fs::exists(kRotor)) return;
+  REQUIRE(fs::exists(kRotor));
   TestContext ctx("blade_sector", {{"file", kRotor.string()}});
   ctx.run();
   Shape s = Shape::load(ctx.artifact("shape").path);

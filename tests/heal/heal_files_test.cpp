@@ -1,5 +1,5 @@
-// heal on the real CAD files of ../shared/data (the paper's wing, Gmsh's and UGAWG's defects,
-// DLR-F6). Tests skip silently when the data folder is absent (CI always has it).
+// heal on the real CAD files of data/ (the paper's wing, Gmsh's defects, meshflow's stand-in for UGAWG's
+// hemisphere-cylinder, DLR-F6). The files are in the repository: a missing one fails the test.
 #include <doctest/doctest.h>
 
 #include "../cad/test_context.hpp"
@@ -25,7 +25,7 @@ std::unique_ptr<TestContext> import(const fs::path& file) {
 
 TEST_CASE("heal: the paper's wing STEP becomes a watertight fluid solid with the wing faces tagged wall") {
   fs::path f = data / "wingtip/3d_bl_wing.stp";
-  if (!fs::exists(f)) return;
+  REQUIRE(fs::exists(f));
   auto imp = import(f);
   auto& is = imp->stats_;
   CHECK(is["units"] == "mm");
@@ -64,7 +64,7 @@ TEST_CASE("heal: the paper's wing STEP becomes a watertight fluid solid with the
 
 TEST_CASE("heal: sewfaces.step (open box bottom) gets its planar opening capped, and with caps off it is refused naming the 6 free edges") {
   fs::path f = data / "cad-defects/sewfaces.step";
-  if (!fs::exists(f)) return;
+  REQUIRE(fs::exists(f));
   auto imp = import(f);
   CHECK(imp->stats_["faces"] == 22);
   CHECK(imp->stats_["free_edges"] == 14);
@@ -93,7 +93,7 @@ TEST_CASE("heal: sewfaces.step (open box bottom) gets its planar opening capped,
 
 TEST_CASE("heal: hemisph-cyl.stp with its degenerate edges heals to a valid solid") {
   fs::path f = data / "cad-defects/hemisph-cyl.stp";
-  if (!fs::exists(f)) return;
+  REQUIRE(fs::exists(f));
   auto imp = import(f);
   CHECK(imp->stats_["faces"] == 5);
   TestContext h("heal", nlohmann::json::object(), {imp->artifact("shape")});
@@ -106,7 +106,7 @@ TEST_CASE("heal: hemisph-cyl.stp with its degenerate edges heals to a valid soli
 
 TEST_CASE("dlr_f6.brep: 130 faces as stored, one duplicates another, heal gives a valid 129-face solid") {
   fs::path f = data / "dlr_f6/dlr_f6.brep";
-  if (!fs::exists(f)) return;
+  REQUIRE(fs::exists(f));
   auto imp = import(f);
   CHECK(imp->stats_["solids"] == 1);
   CHECK(imp->stats_["faces"] == 130);
@@ -123,7 +123,7 @@ TEST_CASE("dlr_f6.brep: 130 faces as stored, one duplicates another, heal gives 
   CHECK(s.faces_with_tag(Tag::wall).size() == 123);
 }
 
-// The corpus (../shared/data/corpus): closed bodies nobody tuned heal for, in a far-field box.
+// The corpus (data/corpus): closed bodies nobody tuned heal for, in a far-field box.
 namespace {
 std::unique_ptr<TestContext> heal_in_box(const fs::path& file, bool unify = true) {
   auto imp = import(file);
@@ -163,7 +163,7 @@ TEST_CASE("heal: a body of one closed face (sphere, torus, two spheres) is a she
 
 TEST_CASE("heal: unifying faces is not taken when its solid fails BRepCheck (the capsule's hemispheres)") {
   fs::path f = data / "corpus/capsule.step";
-  if (!fs::exists(f)) return;
+  REQUIRE(fs::exists(f));
   auto h = heal_in_box(f);
   Shape s = Shape::load(h->artifact("shape").path);
   CHECK(s.valid());
@@ -176,7 +176,7 @@ TEST_CASE("heal: unifying faces is not taken when its solid fails BRepCheck (the
 
 TEST_CASE("heal: symmetry_plane puts a half model on its root plane: no padding there, that box face symmetry") {
   fs::path f = data / "corpus/swept_wing.step";
-  if (!fs::exists(f)) return;
+  REQUIRE(fs::exists(f));
   auto imp = import(f);
   TestContext h("heal", nlohmann::json{{"fluid", "box"}, {"symmetry_plane", "z-"}}, {imp->artifact("shape")});
   h.run();

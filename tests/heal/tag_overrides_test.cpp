@@ -1,5 +1,5 @@
 // Face-tag overrides (`tag_overrides`: faces / plane / box selectors, applied in order) on the
-// UGAWG hemisphere-cylinder, whose automatic tags are meaningless, and on the naca_wing.
+// hemisphere-cylinder (data/cad-defects/hemisph-cyl.stp, meshflow's stand-in for UGAWG's), whose automatic tags are meaningless, and on the naca_wing.
 #include <doctest/doctest.h>
 
 #include "../cad/test_context.hpp"
@@ -16,7 +16,7 @@ namespace fs = std::filesystem;
 
 TEST_CASE("tag_overrides on heal: hemisph-cyl gets wall / symmetry / farfield right") {
   fs::path f = fs::path(MESHFLOW_DATA_DIR) / "cad-defects/hemisph-cyl.stp";
-  if (!fs::exists(f)) return;
+  REQUIRE(fs::exists(f));
   TestContext imp("step", {{"file", f.string()}});
   imp.run();
   // automatic tags: the far-field sphere (r = 100), on no plane of the box, is farfield

@@ -37,7 +37,7 @@ meshflow::init::Analysis analysed(const fs::path& f) {
 }  // namespace
 
 TEST_CASE("init: a body goes in a far-field box, a tunnel or a solid with a void is the domain") {
-  if (!fs::exists(data / "corpus")) return;
+  REQUIRE(fs::exists(data / "corpus"));
   struct Case {
     const char* file;
     bool domain;
@@ -230,7 +230,7 @@ TEST_CASE("init: a bent duct or a long pipe given as a solid is an internal flow
 }
 
 TEST_CASE("init: a body standing on one side of its box is a half model on that plane, equal ends are not") {
-  if (!fs::exists(data / "corpus")) return;
+  REQUIRE(fs::exists(data / "corpus"));
   // the swept wing's root (area 0.082) on z = 0 against its flat tip (0.020): z-
   CHECK(analysed(data / "corpus/swept_wing.step").symmetry_plane == "z-");
   // a cylinder's two equal ends, a rounded box's six sides, a sphere's none: a whole body
@@ -242,7 +242,7 @@ TEST_CASE("init: a body standing on one side of its box is a half model on that 
 }
 
 TEST_CASE("init: layer thickness, wall sizes and far-field size come from the measured shape") {
-  if (!fs::exists(data / "corpus")) return;
+  REQUIRE(fs::exists(data / "corpus"));
   // sphere R 0.5: 5% of its diameter; curvature radius 0.5 asks for no refinement
   auto s = analysed(data / "corpus/sphere.step");
   CHECK(s.wall_max == doctest::Approx(1.0).epsilon(1e-3));
@@ -301,7 +301,7 @@ TEST_CASE("init: bad arguments and files exit 2 with a message, and write nothin
 
 TEST_CASE("init: the capsule's workflow, written by init and run as it is, ends valid with 10 split layers") {
   fs::path cad = data / "corpus/capsule.step";
-  if (!fs::exists(cad)) return;
+  REQUIRE(fs::exists(cad));
   fs::path dir = mftest::temp_dir("init-capsule");
   fs::path wf = dir / "capsule.yaml";
   auto r = mftest::run_cli({"init", cad.string(), "-o", wf.string()});

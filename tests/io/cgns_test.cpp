@@ -206,7 +206,7 @@ std::vector<TypeFacts> sids_facts() {
 
 Mesh gmsh_made(const fs::path& msh) { return io::read_mesh(msh); }
 
-// Gmsh-made meshes of every 3D type (the linear mixed cube of shared/data, its orders raised
+// Gmsh-made meshes of every 3D type (the linear mixed cube of data/highorder, its orders raised
 // by Gmsh's setOrder to 2, 3, 4), its unnamed groups replaced by wall, farfield, symmetry
 // (every third surface each) and fluid.
 const std::vector<fs::path>& gmsh_cubes() {

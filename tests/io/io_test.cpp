@@ -1,4 +1,4 @@
-// Tests of the mesh formats against external truth: the files in shared/data/highorder,
+// Tests of the mesh formats against external truth: the files in data/highorder,
 // Gmsh and meshio loading what we write, Gmsh's own Jacobian analysis, VTK's Lagrange cells.
 #include <doctest/doctest.h>
 
@@ -100,7 +100,7 @@ int run_cmd(const std::string& name, std::vector<std::string> args) {
 }
 }  // namespace
 
-TEST_CASE("every file in shared/data/highorder reads with the counts the file states") {
+TEST_CASE("every file in data/highorder reads with the counts the file states") {
   struct Expect {
     const char* file;
     size_t nodes;
@@ -651,7 +651,7 @@ TEST_CASE("quality --json and convert commands, artifact type 'mesh' is register
   CHECK(fs::file_size(exported) > 1000);
 }
 
-TEST_CASE("Gmsh-made meshes of every 3D type (shared/data/highorder) survive msh -> Nektar++ xml -> model") {
+TEST_CASE("Gmsh-made meshes of every 3D type (data/highorder) survive msh -> Nektar++ xml -> model") {
   for (std::string f : {"v4.1_cube_all.msh", "v4.1_cube_hex.msh", "v4.1_cube_prism.msh", "v4.1_cube_tet.msh"}) {
     INFO(f);
     Mesh m = io::read_mesh(kData + f);

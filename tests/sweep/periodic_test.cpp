@@ -183,7 +183,7 @@ TEST_CASE("sweep with periodic_match: the periodic_hi side is the image of perio
 }
 
 TEST_CASE("workflows/rotor67.yaml through tet: valid conforming linear hybrid mesh, outer-surface crossings cleared, periodic_hi the rotated image of periodic_lo to 1e-12 R") {
-  if (!fs::exists(fs::path(MESHFLOW_DATA_DIR) / "rotor67/rotor67geometry.dat")) return;
+  REQUIRE(fs::exists(fs::path(MESHFLOW_DATA_DIR) / "rotor67/rotor67geometry.dat"));
   fs::path dir = mftest::temp_dir("sweep-rotor67");
   // the workflow up to tet (the high-order stages and their output removed)
   std::string wf = mftest::workflow_without(fs::path(MESHFLOW_SOURCE_DIR) / "workflows/rotor67.yaml", dir / "rotor67_linear.yaml",

@@ -168,7 +168,7 @@ TEST_CASE("sweep refuses divisions that do not belong to the shell, naming the e
 
 TEST_CASE("sweep and tet on the paper's wing (STEP, rounded tip, tunnel wall): valid and conforming") {
   fs::path stp = fs::path(MESHFLOW_DATA_DIR) / "wingtip/3d_bl_wing.stp";
-  if (!fs::exists(stp)) return;
+  REQUIRE(fs::exists(stp));
   fs::path dir = mftest::temp_dir("sweep-step");
   mftest::write_text(dir / "w.yaml", "meshflow: 1\nname: sweep-step\nstages:\n"
                                      "  geometry: {kind: step, with: {file: " + stp.string() + "}}\n"

@@ -31,7 +31,7 @@ long count_of(const json& mesh_stats, const char* type) { return mesh_stats.at("
 }  // namespace
 
 TEST_CASE("wing_body.yaml (DLR-F6) to the end: valid conforming linear hybrid mesh, valid P=4 split mesh, Gmsh and VTK agree") {
-  if (!fs::exists(fs::path(MESHFLOW_DATA_DIR) / "dlr_f6/dlr_f6.brep")) return;
+  REQUIRE(fs::exists(fs::path(MESHFLOW_DATA_DIR) / "dlr_f6/dlr_f6.brep"));
   constexpr long kMaxCrossings = 5;
   fs::path dir = mftest::temp_dir("e2e-wing-body");
   std::string wf = std::string(MESHFLOW_SOURCE_DIR) + "/workflows/wing_body.yaml";
