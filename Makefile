@@ -43,7 +43,7 @@ bench-matrix: build
 	bench/matrix.sh $(BUILD)
 	bench/run.sh --assemble
 
-# Every file of both corpora (../shared/data/corpus, bench/corpus/real) through `meshflow init` and `meshflow run`, no hand
+# Every file of both corpora (data/corpus, bench/corpus/real) through `meshflow init` and `meshflow run`, no hand
 # edits: which end with a valid mesh and each failure's class, in bench/results/corpus.md (long: an hour or more)
 corpus: build
 	scripts/corpus.sh $(BUILD)

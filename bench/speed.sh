@@ -38,7 +38,7 @@ gmsh_wing() {
   local name=$1
   echo "load $(load)" > "$OUT/$name.load"
   /usr/bin/time -f "%e %M" -o "$OUT/$name.time" /usr/bin/python3 bench/gmsh/wing_bl.py \
-    ../shared/data/wingtip/3d_bl_wing.stp "$OUT/$name.msh" --heal 1 --scale 1e-3 --walls auto --wall-size 0.05 \
+    data/wingtip/3d_bl_wing.stp "$OUT/$name.msh" --heal 1 --scale 1e-3 --walls auto --wall-size 0.05 \
     --curv 12 --far-size 0.5 --first-height 4.4e-4 --layers 10 --ratio 1.5 --order 4 --hoopt 4 > "$OUT/$name.log" 2>&1
   echo "rc=$?" >> "$OUT/$name.time"
   rm -f "$OUT/$name.msh"

@@ -8,8 +8,8 @@
 #
 #   scripts/corpus.sh BUILD [RESULTS.md] [CAD_FILE|WORKFLOW.yaml ...]
 #
-# Defaults: every file of both corpora, the simple one (../shared/data/corpus) and the real
-# third-party CAD (bench/corpus/real, sources in bench/corpus/SOURCES.md), into
+# Defaults: every file of both corpora, the simple one (data/corpus) and the real
+# third-party CAD (bench/corpus/real; sources of both in SOURCES.md), into
 # bench/results/corpus.md, the pictures beside it in bench/results/corpus/. Each failure gets a
 # class (scripts/corpus-class.py) and the table ends with the failures counted by class. A .yaml argument is run as it is (no init).
 # MESHFLOW_BIN runs another meshflow (an older build, to compare: its init writes the workflow,
@@ -23,7 +23,7 @@ shift $(( $# >= 2 ? 2 : $# ))
 inputs=("$@")
 if [ ${#inputs[@]} -eq 0 ]; then
   shopt -s nullglob nocaseglob
-  inputs=("$root"/../shared/data/corpus/*.{step,stp}
+  inputs=("$root"/data/corpus/*.{step,stp}
           "$root"/bench/corpus/real/*.{step,stp,iges,igs,brep,brp})
   shopt -u nullglob nocaseglob
 fi

@@ -12,8 +12,8 @@ MF=${1:-build/meshflow}
 OUT=${2:-/tmp/meshflow-gmshbench}
 TMO=${TMO:-300}
 mkdir -p "$OUT"
-WING="../shared/data/wingtip/3d_bl_wing.stp --heal 1 --scale 1e-3 --walls auto --wall-size 0.05 --curv 12 --far-size 0.5 --first-height 4.4e-4"
-DLR="../shared/data/dlr_f6/dlr_f6.brep --heal 0 --scale 1e-3 --walls 1-123 --wall-size 0.03 --curv 8 --far-size 0.2 --first-height 5e-5"
+WING="data/wingtip/3d_bl_wing.stp --heal 1 --scale 1e-3 --walls auto --wall-size 0.05 --curv 12 --far-size 0.5 --first-height 4.4e-4"
+DLR="data/dlr_f6/dlr_f6.brep --heal 0 --scale 1e-3 --walls 1-123 --wall-size 0.03 --curv 8 --far-size 0.2 --first-height 5e-5"
 run() {  # name cadargs hoopt
   local name=$1 args=$2 ho=$3
   echo "== $name (HighOrderOptimize $ho)"
