@@ -3,7 +3,7 @@ BUILD ?= build
 JOBS ?= $(shell nproc)
 CMAKE_FLAGS ?=
 
-.PHONY: all deps build demo test test-cluster bench bench-speed bench-matrix corpus corpus-random pictures test-asan fuzz clean
+.PHONY: all deps build demo test install package test-cluster bench bench-speed bench-matrix corpus corpus-random pictures test-asan fuzz clean
 
 all: build
 
@@ -21,6 +21,17 @@ demo: build
 
 test: build
 	cd $(BUILD) && ctest --output-on-failure -j $(JOBS) --timeout 900
+
+# Installs the program, its schemas and its documentation under PREFIX (bin/meshflow,
+# share/meshflow/schemas, share/doc/meshflow); cmake/install.cmake says what goes where.
+PREFIX ?= /usr/local
+install: build
+	cmake --install $(BUILD) --prefix $(PREFIX)
+
+# The Debian package $(BUILD)/meshflow_<version>_<arch>.deb (CPack; install it with
+# `apt install ./meshflow_*.deb`, which pulls in the libraries it declares).
+package: build
+	cd $(BUILD) && cpack -G DEB
 
 # Snakemake on a single-node Slurm that the test starts on 127.0.0.1 (tests/cluster/slurm_test.sh;
 # needs root and slurm-wlm, munge, snakemake from install-deps; skipped with the reason otherwise).

@@ -10,6 +10,7 @@
 #include "engine/run_report.hpp"
 #include "engine/runner.hpp"
 #include "engine/schema.hpp"
+#include "engine/version.hpp"
 #include "engine/workflow.hpp"
 
 #include <CLI/CLI.hpp>
@@ -177,7 +178,7 @@ int cli_main(int argc, char** argv) {
 
   CLI::App app{"meshflow: valid high-order curvilinear hybrid meshes for CFD, from a workflow file"};
   app.require_subcommand(1);
-  app.set_version_flag("--version", std::string("meshflow ") + MESHFLOW_VERSION);
+  app.set_version_flag("--version", version_line());
   app.footer(commands_footer() +
              "\n\nExit codes: 0 success; 1 a stage failed or `check` found differences; 2 bad input (workflow, "
              "arguments); 3 a mesh breaks the contract (invalid, degenerate, non-conforming or untagged elements, CAD faces "

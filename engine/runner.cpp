@@ -5,6 +5,7 @@
 #include "engine/hash.hpp"
 #include "engine/registry.hpp"
 #include "engine/run_report.hpp"
+#include "engine/version.hpp"
 
 #include <algorithm>
 #include <atomic>
@@ -81,6 +82,7 @@ KeyResult make_key(const Workflow& wf, const StageDecl& d, const std::vector<Art
   const StageKind* kind = find_stage_kind(d.kind);
   json pre;
   pre["engine"] = kEngineFormat;
+  pre["meshflow"] = version();  // a new release never serves an older one's results (CHANGELOG.md)
   pre["kind"] = d.kind;
   pre["kind_version"] = kind->version;
   pre["params"] = d.params;

@@ -17,7 +17,7 @@
 
 namespace meshflow {
 
-constexpr int kEngineFormat = 1;  // bump when the key preimage or the store layout changes
+constexpr int kEngineFormat = 2;  // bump when the key preimage or the store layout changes (2: the preimage names meshflow's version)
 constexpr double kDefaultMemoryShare = 0.8;  // RunOptions::memory_budget_gb's default: this share of the machine
 
 // The memory budget in bytes that `gb` (RunOptions::memory_budget_gb) means on this machine;
