@@ -5,6 +5,7 @@
 #include "stages/contract/contract.hpp"
 #include "stages/io/mesh_io.hpp"
 #include "stages/model/quality.hpp"
+#include "stages/optimise/linearise.hpp"
 #include "stages/optimise/optimise.hpp"
 #include "stages/optimise/untangle.hpp"
 
@@ -24,6 +25,20 @@ std::string duration(double s) {
   if (s < 60) std::snprintf(b, sizeof b, "%.0f s", s);
   else std::snprintf(b, sizeof b, "%d min %02d s", int(s / 60), int(s) % 60);
   return b;
+}
+
+void log_linearised(StageContext& ctx, const LineariseReport& lr) {
+  std::ostringstream s;
+  s << "optimise: linearise: " << lr.invalid_before << " invalid elements -> " << lr.invalid_after << "; " << lr.regions
+    << " regions of " << lr.elements << " elements took back curvature (" << lr.straight_elements << " made straight), "
+    << lr.cad_nodes_moved << " boundary nodes moved off the CAD by at most " << lr.max_cad_move << " ("
+    << lr.max_cad_move_relative << " x the element's edge); " << lr.seconds << " s";
+  for (const auto& [why, n] : lr.unrepaired_by_reason) s << "; " << n << " not linearised: " << why;
+  ctx.log(s.str());
+  if (lr.cad_nodes_moved)
+    ctx.log("optimise: warning: " + std::to_string(lr.cad_nodes_moved) +
+            " high-order nodes of boundary faces no longer lie on the CAD (stats.optimise.linearise); "
+            "a thinner shell or a lower curve.order keeps them on it, linearise_invalid: false refuses instead");
 }
 
 void run(StageContext& ctx) {
@@ -76,18 +91,35 @@ void run(StageContext& ctx) {
                        std::to_string(g.visited) + " tried), " + duration(g.seconds));
     });
   }
+  // the quality after untangling, computed once: linearise starts from it, and the mesh
+  // contract's record copies it for every element linearise did not move
+  const std::vector<char> untangled = moved_since_input();
+  const model::MeshQuality quality_now =
+      model::mesh_quality(m, ctx.threads(), known.empty() ? nullptr : &known, known.empty() ? nullptr : &untangled);
+  // the last resort for what is still invalid (linearise.hpp): as little of its curvature taken back as makes it valid
+  LineariseReport lr;
+  std::vector<char> linearised;
+  const bool do_linearise = p.at("linearise_invalid").get<bool>();
+  if (do_linearise) {
+    ctx.progress(0.65, "linearising the elements still invalid");
+    LineariseOptions lo;
+    lo.known_quality = &quality_now;
+    lr = linearise_invalid(m, lo, ctx.threads(), &linearised);
+    if (lr.invalid_before) log_linearised(ctx, lr);
+  }
   ctx.progress(0.7, "writing");
   io::write_mesh(m, ctx.output("mesh", "mesh"), io::MeshFormat::MshBinary);
   ctx.progress(0.8, "quality");
-  const std::vector<char> moved = moved_since_input();
   const auto quality = contract::record(ctx, m, contract::Extent::Domain, &shape,
                    do_untangle ? "optimise could not repair them: stats.optimise.untangle.unrepaired lists them with the "
-                                 "reason and what to change (a thinner shell, a lower curve.order, larger untangle_rings or budgets)"
+                                 "reason and what to change (a thinner shell, a lower curve.order, larger untangle_rings or budgets); "
+                                 "stats.optimise.linearise says why linearising them failed"
                                : "untangling is off (optimise.untangle: false): turn it on to repair them",
-                   known.empty() ? nullptr : &known, known.empty() ? nullptr : &moved);
+                   &quality_now, linearised.empty() ? nullptr : &linearised);
   io::write_quality(m, quality, ctx.output("quality", "mesh_quality"));
   ctx.stats()["optimise"] = r.to_json();
   if (do_untangle) ctx.stats()["optimise"]["untangle"] = ur.to_json();
+  if (do_linearise && lr.invalid_before) ctx.stats()["optimise"]["linearise"] = lr.to_json();
   std::ostringstream s;
   s << "optimise: P=" << r.order << ", " << r.curve_edges << " curve edges, " << r.surface_edges << " surface edges, "
     << r.faces << " faces; energy " << r.energy_before << " -> " << r.energy_after << ", " << r.nodes_moved
@@ -132,7 +164,7 @@ void run(StageContext& ctx) {
 }
 
 StageRegistrar reg({.kind = "optimise",
-                    .version = 7,  // 5: also stores the mesh's per-element quality ("quality"); 6: a folded wall face slides first; 7: the lift
+                    .version = 8,  // 5: also stores the mesh's per-element quality ("quality"); 6: a folded wall face slides first; 7: the lift; 8: linearise_invalid
                     .summary = "surface node optimisation: spring energy of high-order edges/faces in CAD parameter space, bounded L-BFGS-B, validity kept",
                     .libraries = {"LBFGSpp 0.1.0"},
                     .needs = {"mesh", "shape"},

@@ -1,9 +1,11 @@
-// Tests of the untangler (stages/optimise/untangle.hpp) on a P=4 tetrahedral cube whose
-// high-order nodes are pushed across their elements, as curving does next to a curved face.
+// Tests of the untangler (stages/optimise/untangle.hpp) and of linearising what it cannot repair
+// (stages/optimise/linearise.hpp) on a P=4 tetrahedral cube whose high-order nodes are pushed
+// across their elements, as curving does next to a curved face.
 #include <doctest/doctest.h>
 
 #include "stages/model/element.hpp"
 #include "stages/model/quality.hpp"
+#include "stages/optimise/linearise.hpp"
 #include "stages/optimise/untangle.hpp"
 
 #include <nlohmann/json.hpp>
@@ -551,4 +553,102 @@ TEST_CASE("untangle floor: a repaired element ends at the early exit's floor, or
   CHECK(rep.invalid_after == 0);
   CHECK((lowest >= 0.05 || rep.below_floor > 0));
   CHECK(rep.to_json().at("below_floor_retries") == rep.below_floor);
+}
+
+TEST_CASE("linearise: an element untangle cannot repair is made valid by taking back part of its curvature; vertices stay, moved boundary nodes are counted and lose their parameters") {
+  auto [m, el] = impossible_cube(2);
+  REQUIRE(el != SIZE_MAX);
+  m.node_u.assign(m.num_nodes(), 0.25);  // stand-in parameters: the moved boundary nodes must lose theirs
+  m.node_v.assign(m.num_nodes(), 0.75);
+  const std::size_t bad = invalid(m);
+  REQUIRE(bad > 0);
+  const Mesh before = m;
+  auto rep = meshflow::optimise::linearise_invalid(m, {}, 1);
+  MESSAGE("linearise: " << rep.invalid_before << " -> " << rep.invalid_after << " invalid, " << rep.regions << " regions of "
+                        << rep.elements << " elements, " << rep.cad_nodes_moved << " boundary nodes moved by at most "
+                        << rep.max_cad_move << ", min scaled Jacobian " << rep.min_scaled_jacobian);
+  CHECK(rep.invalid_before == bad);
+  CHECK(rep.invalid_after == 0);
+  CHECK(invalid(m) == 0);
+  CHECK(rep.regions >= 1);
+  CHECK(rep.cad_nodes_moved > 0);
+  CHECK(rep.max_cad_move > 0);
+  CHECK(rep.min_scaled_jacobian > 0);
+  CHECK(rep.unrepaired_by_reason.empty());
+  const auto& b = m.blocks[0];
+  std::vector<char> vertex(m.num_nodes(), 0), in_region(m.num_nodes(), 0);
+  for (std::size_t e = 0; e < b.size(); ++e)
+    for (int a = 0; a < 4; ++a) vertex[b.element(e)[a]] = 1;
+  std::size_t moved = 0, moved_on_boundary = 0;
+  for (std::size_t i = 0; i < m.num_nodes(); ++i) {
+    const bool same = m.x[i] == before.x[i] && m.y[i] == before.y[i] && m.z[i] == before.z[i];
+    if (vertex[i]) CHECK(same);
+    if (same) {
+      CHECK(m.node_u[i] == 0.25);
+      continue;
+    }
+    ++moved;
+    if (m.node_entity_dim[i] == 2) {
+      ++moved_on_boundary;
+      CHECK(std::isnan(m.node_u[i]));
+      CHECK(std::isnan(m.node_v[i]));
+    }
+  }
+  CHECK(moved == rep.nodes_moved);
+  CHECK(moved_on_boundary == rep.cad_nodes_moved);
+  // only nodes of the pushed element's neighbourhood moved: far fewer than the mesh has
+  CHECK(moved < m.num_nodes() / 10);
+}
+
+TEST_CASE("linearise: the same bytes at 1 and 2 threads, nothing to do on a valid mesh, and an element whose straight version is inverted is left exactly as it was") {
+  auto [a, el] = impossible_cube(2);
+  REQUIRE(el != SIZE_MAX);
+  Mesh c = a;
+  auto r1 = meshflow::optimise::linearise_invalid(a, {}, 1);
+  auto r2 = meshflow::optimise::linearise_invalid(c, {}, 2);
+  CHECK(r1.invalid_after == 0);
+  CHECK(a.x == c.x);
+  CHECK(a.y == c.y);
+  CHECK(a.z == c.z);
+  auto j1 = r1.to_json(), j2 = r2.to_json();
+  j1.erase("seconds"), j2.erase("seconds");
+  CHECK(j1 == j2);
+  // a valid mesh: nothing moves
+  Mesh v = cube_tets(2, 3), v0 = v;
+  auto r0 = meshflow::optimise::linearise_invalid(v, {}, 2);
+  CHECK(r0.invalid_before == 0);
+  CHECK(r0.regions == 0);
+  CHECK(v.x == v0.x);
+  // an element turned inside out at its vertices (a linear mesh that broke its contract): its
+  // straight version is invalid, so nothing is moved and the reason is given
+  Mesh w = cube_tets(2, 2);
+  auto& wb = w.blocks[0];
+  const std::uint32_t* en = wb.element(0);
+  const std::uint32_t apex = en[3];
+  w.x[apex] = 2 * w.x[en[0]] - w.x[apex];  // the fourth vertex reflected through the first
+  w.y[apex] = 2 * w.y[en[0]] - w.y[apex];
+  w.z[apex] = 2 * w.z[en[0]] - w.z[apex];
+  REQUIRE(invalid(w) > 0);
+  const Mesh w0 = w;
+  auto rw = meshflow::optimise::linearise_invalid(w, {}, 1);
+  CHECK(rw.invalid_after > 0);
+  CHECK(rw.unrepaired_by_reason.count("straight element invalid") == 1);
+  CHECK(w.x == w0.x);
+  CHECK(w.y == w0.y);
+  CHECK(w.z == w0.z);
+}
+
+TEST_CASE("linearise: a high-order node in a periodic pair is never moved (its partner would not follow)") {
+  auto [m, el] = impossible_cube(2);
+  REQUIRE(el != SIZE_MAX);
+  const auto& b = m.blocks[0];
+  meshflow::model::PeriodicLink link;
+  link.dim = 2, link.tag = 2, link.master_tag = 1;
+  link.nodes.push_back({b.element(el)[4], b.element(el)[4]});  // the element's first edge node, paired
+  m.periodic.push_back(link);
+  const Mesh before = m;
+  auto rep = meshflow::optimise::linearise_invalid(m, {}, 1);
+  CHECK(rep.invalid_after > 0);
+  CHECK(rep.unrepaired_by_reason.count("in a periodic pair") == 1);
+  CHECK(m.x[b.element(el)[4]] == before.x[b.element(el)[4]]);
 }

@@ -150,8 +150,8 @@ def all_runs(work):
     q = run(work, "quarantine", ["run", DEMO] + SMALL + ["--cache", demo_cache], 0)
     check(any(r.get("quarantined") for _, r in q), "quarantine: report.json lists the quarantined object")
     reports += q
-    reports += run(work, "invalid", ["run", DEMO] + SMALL + ["--cache", demo_cache, "--set", "optimise.untangle=false"], 3)
-    reports += run(work, "accepted", ["run", DEMO] + SMALL + ["--cache", demo_cache, "--set", "optimise.untangle=false",
+    reports += run(work, "invalid", ["run", DEMO] + SMALL + ["--cache", demo_cache, "--set", "optimise.untangle=false", "--set", "optimise.linearise_invalid=false"], 3)
+    reports += run(work, "accepted", ["run", DEMO] + SMALL + ["--cache", demo_cache, "--set", "optimise.untangle=false", "--set", "optimise.linearise_invalid=false",
                                                              "--allow-invalid"], 0)
     reports += run(work, "failed", ["run", DEMO] + SMALL + ["--cache", demo_cache, "--set", "tet.max_elements=10"], 1)
 

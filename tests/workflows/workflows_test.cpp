@@ -239,10 +239,10 @@ TEST_CASE("naca_wingtip: runs, matches its golden, re-runs from cache, --set re-
     if (s["stats"]["contract"].contains("face_area_worst_rel_error") && s["name"] != "sweep")
       CHECK(s["stats"]["contract"]["face_area_worst_rel_error"].get<double>() < 1e-3);
   }
-  // without untangling, the delivered mesh has inverted elements: not a success (exit 3), the
+  // without untangling or linearising, the delivered mesh has inverted elements: not a success (exit 3), the
   // summary opens with where they are, the outputs are written and marked, check refuses
   {
-    auto bad = sh(meshflow() + " run " + wf + common + " --set optimise.untangle=false");
+    auto bad = sh(meshflow() + " run " + wf + common + " --set optimise.untangle=false --set optimise.linearise_invalid=false");
     INFO(bad.out);
     CHECK(bad.code == 3);
     auto first = bad.out.find("\nINVALID: the mesh breaks the contract");
@@ -258,9 +258,9 @@ TEST_CASE("naca_wingtip: runs, matches its golden, re-runs from cache, --set re-
     CHECK(rb["problems"][0]["where"][0]["at"].size() == 3);
     CHECK(rb["outputs"]["mesh"]["invalid"] == true);
     CHECK(fs::exists(d / "out/mesh.msh"));
-    auto chk = sh(meshflow() + " check " + wf + common + " --set optimise.untangle=false");
+    auto chk = sh(meshflow() + " check " + wf + common + " --set optimise.untangle=false --set optimise.linearise_invalid=false");
     CHECK(chk.code == 3);
-    auto ok = sh(meshflow() + " run " + wf + common + " --set optimise.untangle=false --allow-invalid");
+    auto ok = sh(meshflow() + " run " + wf + common + " --set optimise.untangle=false --set optimise.linearise_invalid=false --allow-invalid");
     CHECK(ok.code == 0);
   }
   auto r3 = sh(meshflow() + " run " + wf + common + " --set geometry.span=2");
