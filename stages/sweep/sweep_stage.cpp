@@ -74,7 +74,7 @@ void run(StageContext& ctx) {
 }
 
 StageRegistrar reg({.kind = "sweep",
-                    .version = 9,  // 9: also stores the mesh's per-element quality ("quality")
+                    .version = 10,  // 9: also stores the mesh's per-element quality ("quality"); 10: folded face triangles repaired where they are
                     .summary = "surface meshes of all faces (CDT in the parameter plane) and the one-layer prism/hex near field",
                     .libraries = {},
                     .needs = {"shape", "shell", "divisions"},

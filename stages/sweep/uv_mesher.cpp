@@ -131,6 +131,7 @@ class UVMesher {
     smooth();
     swaps();
     if (!in.smooth.empty()) smooth_corners();
+    unfold();
     finish();
     return std::move(out);
   }
@@ -617,6 +618,143 @@ class UVMesher {
       out.tris.push_back({tr[2], tr[0], ci});
       ++out.smooth_corner_splits;
     }
+  }
+
+  // ── the triangles still folded in 3D, repaired where they are ──
+  // A point inserted next to a curved boundary segment, nearly on its chord in the plane, lies
+  // off it in 3D by the segment's sag: the sliver between them has a normal of either sign
+  // (bottle's torus fillet: a point 0.2 of the way between two boundary points, its triangle
+  // folded). For each folded triangle, in turn: flip one of its edges that is no boundary
+  // segment, when both new triangles are counter-clockwise and unfolded; else move one of its
+  // new points to the best of a few positions round it (Laplacian, halfway to it, a ring at a
+  // third of its distance to its neighbours) at which its triangles are counter-clockwise and
+  // none folded; else collapse such a point into a neighbour (the link condition kept, every
+  // new triangle counter-clockwise and unfolded). Only a mesh with folds changes; points a
+  // collapse left unused are dropped.
+  void unfold() {
+    if (!any_folded()) return;
+    vt.assign(out.uv.size(), {}), nbr.assign(out.uv.size(), {});  // smooth_corners may have added points
+    for (int pass = 0; pass < 8 && any_folded(); ++pass)
+      for (int t = 0; t < static_cast<int>(out.tris.size()); ++t) {
+        if (out.tris[t][0] < 0 || !folded(out.tris[t][0], out.tris[t][1], out.tris[t][2])) continue;
+        rebuild_adjacency();
+        if (flip_folded(t)) {
+          ++out.unfold_repairs;
+          continue;
+        }
+        const auto tr = out.tris[t];
+        for (int v : tr)
+          if (v >= nb && (relocate(v) || collapse(v))) {
+            ++out.unfold_repairs;
+            break;
+          }
+      }
+    drop_unused();
+  }
+  bool ccw(const std::array<int, 3>& t) const { return orient(out.uv[t[0]], out.uv[t[1]], out.uv[t[2]]) > 0; }
+  bool sound(const std::array<int, 3>& t) const { return ccw(t) && !folded(t[0], t[1], t[2]); }
+  bool is_segment(int a, int b) const {
+    for (auto& sg : in.segments)
+      if ((sg[0] == a && sg[1] == b) || (sg[0] == b && sg[1] == a)) return true;
+    return false;
+  }
+  bool flip_folded(int t) {
+    for (int k = 0; k < 3; ++k) {
+      const int a = out.tris[t][k], b = out.tris[t][(k + 1) % 3], c = out.tris[t][(k + 2) % 3];
+      if (is_segment(a, b)) continue;
+      for (int u : vt[a]) {
+        if (u == t || out.tris[u][0] < 0) continue;
+        int d = -1;
+        bool has_b = false;
+        for (int j = 0; j < 3; ++j) {
+          has_b |= out.tris[u][j] == b;
+          if (out.tris[u][j] != a && out.tris[u][j] != b) d = out.tris[u][j];
+        }
+        if (!has_b || d < 0) continue;
+        const std::array<int, 3> N0{a, d, c}, N1{d, b, c};  // (a, b, c) counter-clockwise, d across (a, b)
+        if (!sound(N0) || !sound(N1)) continue;
+        out.tris[t] = N0, out.tris[u] = N1;
+        return true;
+      }
+    }
+    return false;
+  }
+  bool relocate(int v) {
+    if (nbr[v].empty()) return false;
+    std::array<double, 2> m{0, 0};
+    double reach = 0;
+    for (int j : nbr[v]) {
+      m[0] += out.uv[j][0], m[1] += out.uv[j][1];
+      reach += std::hypot(out.uv[j][0] - out.uv[v][0], out.uv[j][1] - out.uv[v][1]);
+    }
+    m[0] /= nbr[v].size(), m[1] /= nbr[v].size(), reach /= 3 * nbr[v].size();
+    const auto old = out.uv[v];
+    const auto oldp = p3[v];
+    std::vector<std::array<double, 2>> cand{m, {0.5 * (old[0] + m[0]), 0.5 * (old[1] + m[1])}};
+    for (int k = 0; k < 8; ++k) cand.push_back({old[0] + reach * std::cos(k * M_PI / 4), old[1] + reach * std::sin(k * M_PI / 4)});
+    double best = 0;
+    std::array<double, 2> at = old;
+    for (const auto& c : cand) {
+      out.uv[v] = c, p3[v] = in.point(c[0], c[1]);
+      double worst = 1;
+      for (int t : vt[v]) worst = ccw(out.tris[t]) ? std::min(worst, q3(t)) : 0.0;  // a folded one counts 0
+      if (worst > best) best = worst, at = c;
+    }
+    out.uv[v] = at, p3[v] = best > 0 ? in.point(at[0], at[1]) : oldp;
+    return best > 0;
+  }
+  bool collapse(int v) {
+    for (int w : nbr[v]) {
+      // link condition: the common neighbours of v and w are the apexes of their shared triangles
+      std::vector<int> apex, common;
+      for (int t : vt[v])
+        for (int j = 0; j < 3; ++j)
+          if (out.tris[t][j] == w)
+            for (int x : out.tris[t])
+              if (x != v && x != w) apex.push_back(x);
+      std::set_intersection(nbr[v].begin(), nbr[v].end(), nbr[w].begin(), nbr[w].end(), std::back_inserter(common));
+      std::sort(apex.begin(), apex.end());
+      if (apex != common) continue;
+      bool ok = true;
+      std::vector<std::pair<int, std::array<int, 3>>> moved;
+      for (int t : vt[v]) {
+        auto n = out.tris[t];
+        if (std::find(n.begin(), n.end(), w) != n.end()) continue;  // dropped
+        for (int& x : n)
+          if (x == v) x = w;
+        if (!sound(n)) {
+          ok = false;
+          break;
+        }
+        moved.push_back({t, n});
+      }
+      if (!ok) continue;
+      for (int t : vt[v]) out.tris[t] = {-1, -1, -1};
+      for (auto& [t, n] : moved) out.tris[t] = n;
+      out.tris.erase(std::remove(out.tris.begin(), out.tris.end(), std::array<int, 3>{-1, -1, -1}), out.tris.end());
+      return true;
+    }
+    return false;
+  }
+  void drop_unused() {
+    std::vector<int> id(out.uv.size(), -1);
+    for (int i = 0; i < nb; ++i) id[i] = i;
+    for (auto& t : out.tris)
+      for (int v : t)
+        if (v >= nb) id[v] = 0;
+    int next = nb;
+    for (std::size_t i = nb; i < id.size(); ++i)
+      if (id[i] >= 0) {
+        id[i] = next;
+        out.uv[next] = out.uv[i], p3[next] = p3[i];
+        if (i < n3.size()) n3[next] = n3[i];
+        ++next;
+      }
+    if (next == static_cast<int>(out.uv.size())) return;
+    out.uv.resize(next), p3.resize(next);
+    if (n3.size() > out.uv.size()) n3.resize(next);
+    for (auto& t : out.tris)
+      for (int& v : t) v = id[v];
   }
 
   void finish() {

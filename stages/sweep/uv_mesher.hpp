@@ -40,7 +40,8 @@ struct UVMeshInput {
   // a triangle whose 3D normal opposes the surface's at its centroid (folded: round a pole, where
   // the parameter plane's triangles fan over more than half a turn, or thin in a strongly sheared
   // plane) is counted: the swaps are redone refusing folds where they fold one, no smoothing move
-  // makes one, and out.folded counts those left.
+  // makes one; those left at the end are repaired where they are (an edge flipped, a new point
+  // moved or collapsed into a neighbour), and out.folded counts any still left.
   int orientation = 0;
   double refine_ratio = 1.3;
   double min_quality = 0.4;  // 3D shape quality 4 sqrt(3) area / sum l^2 below which a triangle gets its circumcentre
@@ -56,7 +57,8 @@ struct UVMeshOutput {
   int smooth_corner_splits = 0;  // triangles split because two boundary segments met at a smooth point
   int smooth_corner_flips = 0;   // such flat triangles whose third edge was flipped instead
   double min_quality = 1;  // of the result (a pole's own triangles, points in 3D, left out)
-  int folded = 0;          // triangles whose 3D normal opposes the surface's (with in.orientation)
+  int folded = 0;          // triangles whose 3D normal opposes the surface's (with in.orientation), left at the end
+  int unfold_repairs = 0;  // flips, moves and collapses that repaired folded triangles at the end
 };
 
 // Throws std::runtime_error (crossing constraints, a point budget exceeded) with the reason.

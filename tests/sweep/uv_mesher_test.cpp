@@ -92,3 +92,56 @@ TEST_CASE("uv mesher: a disc bounded by one closed circular edge gets one point 
   CHECK(min_ratio > 0.1);
   CHECK(out.min_quality > 0.3);
 }
+
+// A triangle folded in 3D at the end of the meshing (its normal opposes the surface's: a point
+// nearly on a curved boundary segment's chord, bottle.brep's torus fillet) is repaired where it
+// is. The surface here is the plane, whose normal is made to point down inside a small disc
+// round the centroid of one triangle of the plain mesh, so that exactly that triangle counts
+// as folded; the result must have no folded triangle, still cover the square, and keep no
+// unused point.
+TEST_CASE("uv mesher: a triangle left folded at the end is repaired by a flip, a move or a collapse; the face stays covered") {
+  UVMeshInput in;
+  in.uv = {{0, 0}, {1, 0}, {1, 1}, {0, 1}};
+  in.segments = {{0, 1}, {1, 2}, {2, 3}, {3, 0}};
+  in.point = [](double u, double v) { return std::array<double, 3>{u, v, 0}; };
+  in.size = [](double, double) { return 0.2; };
+  in.normal = [](double, double) { return std::array<double, 3>{0, 0, 1}; };
+  in.orientation = 1;
+  const auto plain = mesh_uv(in);
+  REQUIRE(plain.folded == 0);
+  CHECK(plain.unfold_repairs == 0);
+  // the first triangle with a new (interior) point, and a disc well inside it round its centroid
+  std::array<double, 2> c{0, 0};
+  double r = 0;
+  for (auto& t : plain.tris) {
+    if (std::max({t[0], t[1], t[2]}) < 4) continue;
+    auto& p = plain.uv;
+    c = {(p[t[0]][0] + p[t[1]][0] + p[t[2]][0]) / 3, (p[t[0]][1] + p[t[1]][1] + p[t[2]][1]) / 3};
+    double l = INFINITY;
+    for (int k = 0; k < 3; ++k) l = std::min(l, std::hypot(p[t[k]][0] - p[t[(k + 1) % 3]][0], p[t[k]][1] - p[t[(k + 1) % 3]][1]));
+    r = 0.05 * l;
+    break;
+  }
+  REQUIRE(r > 0);
+  in.normal = [c, r](double u, double v) {
+    return std::array<double, 3>{0, 0, std::hypot(u - c[0], v - c[1]) < r ? -1.0 : 1.0};
+  };
+  const auto out = mesh_uv(in);
+  INFO("points " << plain.uv.size() << " -> " << out.uv.size() << ", repairs " << out.unfold_repairs);
+  CHECK(out.unfold_repairs > 0);
+  CHECK(out.folded == 0);
+  double area = 0;
+  std::vector<char> used(out.uv.size(), 0);
+  for (auto& t : out.tris) {
+    auto& p = out.uv;
+    double o = (p[t[1]][0] - p[t[0]][0]) * (p[t[2]][1] - p[t[0]][1]) - (p[t[1]][1] - p[t[0]][1]) * (p[t[2]][0] - p[t[0]][0]);
+    CHECK(o > 0);
+    area += 0.5 * o;
+    for (int v : t) used[v] = 1;
+    // no triangle's centroid in the disc: none is folded
+    double gu = (p[t[0]][0] + p[t[1]][0] + p[t[2]][0]) / 3, gv = (p[t[0]][1] + p[t[1]][1] + p[t[2]][1]) / 3;
+    CHECK(std::hypot(gu - c[0], gv - c[1]) >= r);
+  }
+  CHECK(area == doctest::Approx(1.0).epsilon(1e-12));
+  CHECK(std::all_of(used.begin(), used.end(), [](char u) { return u; }));
+}
