@@ -5,7 +5,8 @@
 #   - prints `--version` with the project's version and the commit (or says it has none);
 #   - runs the demo workflow the package ships (share/doc/meshflow/examples/naca_wingtip.yaml,
 #     copied into the empty folder): exit 0, report.json "ok" with a valid order-4 mesh;
-#   - writes a workflow with `init` for the STEP file the package ships.
+#   - writes a workflow with `init` for the STEP file the package ships (the paper's wing) and
+#     runs it: exit 0, report.json "ok".
 # Also: the package declares the Debian package of every shared library the binary needs, the
 # binary has no run path into the build folder, and the package holds the licence and schemas.
 # Everything it makes is under one scratch folder, removed at exit.
@@ -84,4 +85,15 @@ PY
 cp "$root/usr/share/doc/meshflow/examples/3d_bl_wing.stp" "$work/"
 run init 3d_bl_wing.stp -o wing.yaml > "$scratch/init.log" 2>&1 || { tail -30 "$scratch/init.log"; fail "meshflow init of the STEP wing"; }
 grep -q "kind: step" "$work/wing.yaml" || fail "init wrote no step stage"
+run run wing.yaml > "$scratch/run-wing.log" 2>&1 || { tail -30 "$scratch/run-wing.log"; fail "meshflow run of init's workflow for the STEP wing"; }
+/usr/bin/python3 - "$work/out/3d-bl-wing/report.json" <<'PY' || fail "report.json of the STEP wing"
+import json, sys
+r = json.load(open(sys.argv[1]))
+assert r["ok"] is True and r["invalid"] is False, (r["ok"], r["invalid"], r["problems"])
+kinds = [s["kind"] for s in r["stages"]]
+assert kinds[0] == "step" and kinds[-1] == "split", kinds  # init's preflight ran the first stages
+split = r["stages"][-1]
+assert split["status"] == "ran" and split["stats"]["contract"]["invalid"] == 0, split["status"]
+print("STEP wing:", split["stats"]["mesh"]["elements"], "invalid 0")
+PY
 echo "ok"
