@@ -239,7 +239,9 @@ Mesh read_vtu(const std::filesystem::path& path) {
       if (phys[e]) m.add_entity(dim, etag[e], {phys[e]});
     }
     auto& b = m.blocks[it->second];
-    const auto& perm = vtk_to_gmsh(s, order);
+    // a VTK_LAGRANGE_WEDGE of 6 points is a wedge in Gmsh's orientation, unlike VTK_WEDGE
+    static const std::vector<int> lagrange_wedge1 = {0, 1, 2, 3, 4, 5};
+    const auto& perm = vt == 73 && order == 1 ? lagrange_wedge1 : vtk_to_gmsh(s, order);
     std::vector<std::uint32_t> nodes(b.nodes_per_element(), 0xffffffffu);
     const int pm1 = order - 1, vbase = 8 + 8 * pm1;  // first vertical-edge node (VTK order)
     const bool swap_edges = legacy_hex && vt == 72 && order >= 2;

@@ -189,6 +189,11 @@ std::vector<L> vtk_layout(Shape s, int p) {
       return m;
     }
     case Shape::Prism: {
+      // VTK_WEDGE (order 1) turns its first triangle the other way round: its (0,1,2) faces
+      // away from (3,4,5) (vtkWedge's docs; Gmsh's faces into the prism), so VTK gives a Gmsh-
+      // ordered wedge a negative volume. meshio writes Gmsh's [0,2,1,3,5,4] as well.
+      // VTK_LAGRANGE_WEDGE keeps Gmsh's orientation, at every order.
+      if (p == 1) return {{0, 0, 0}, {0, 1, 0}, {1, 0, 0}, {0, 0, 1}, {0, 1, 1}, {1, 0, 1}};
       m = {{0, 0, 0}, {p, 0, 0}, {0, p, 0}, {0, 0, p}, {p, 0, p}, {0, p, p}};
       for (int z : {0, p}) {
         for (int i = 1; i < p; ++i) m.push_back({i, 0, z});
