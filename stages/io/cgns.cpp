@@ -7,9 +7,9 @@
 //     ├ one Elements_t section per volume shape and order (TETRA_35, PENTA_75, ...), then one
 //     │ per boundary group and shape (TRI_15, QUAD_25, ...), element numbers consecutive
 //     ├ ZoneBC: one BC_t per boundary group: PointRange over its sections' ElementRange,
-//     │ GridLocation FaceCenter (EdgeCenter in 2D), BCType from the name, FamilyName = the group
+//     │ GridLocation FaceCenter (EdgeCenter in 2D), BCType FamilySpecified, FamilyName = the group
 //     └ FamilyName: the volume's group (when it has exactly one)
-//   Family_t per group (FamilyBC for boundary groups).
+//   Family_t per group (FamilyBC for boundary groups: BCType from the group's name).
 // Nodes are permuted between Gmsh's ordering (the model's) and CGNS's (cgns_layout.hpp).
 // No DimensionalUnits: the mesh model carries no length unit, so none is claimed; the base's
 // DataClass is NormalizedByUnknownDimensional (lengths in a unit the file does not state).
@@ -239,8 +239,9 @@ void write_boundary_group(int fn, int B, int Z, int dim, const std::string& g, c
   ok(cg_family_write(fn, B, g.c_str(), &F), p, "writing family " + g);
   ok(cg_fambc_write(fn, B, F, "FamBC", t, &FBC), p, "writing FamilyBC of " + g);
   const cgsize_t range[2] = {first, last};
-  ok(cg_boco_write(fn, B, Z, g.c_str(), t == CGNS_ENUMV(BCTypeUserDefined) ? CGNS_ENUMV(FamilySpecified) : t,
-                   CGNS_ENUMV(PointRange), 2, range, &BC),
+  // FamilySpecified: the type lives on the family alone, as the SIDS recommends; VTK's CGNS
+  // reader (ParaView) skips a BC_t of type BCFarfield or BCSymmetryPlane but reads these.
+  ok(cg_boco_write(fn, B, Z, g.c_str(), CGNS_ENUMV(FamilySpecified), CGNS_ENUMV(PointRange), 2, range, &BC),
      p, "writing BC " + g);
   ok(cg_boco_gridlocation_write(fn, B, Z, BC, dim == 3 ? CGNS_ENUMV(FaceCenter) : CGNS_ENUMV(EdgeCenter)), p,
      "writing the GridLocation of BC " + g);

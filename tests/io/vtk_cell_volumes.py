@@ -17,6 +17,10 @@ import vtk
 from vtk.util.numpy_support import vtk_to_numpy
 
 
+vtk.vtkObject.GlobalWarningDisplayOff()
+vtk.vtkLogger.SetStderrVerbosity(vtk.vtkLogger.VERBOSITY_OFF)
+
+
 def volumes(grid, out):
     f = vtk.vtkCellSizeFilter()
     f.SetInputData(grid)

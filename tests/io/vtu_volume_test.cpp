@@ -1,11 +1,12 @@
 // VTU cells as VTK measures them: a box of prisms and hexahedra at orders 1, 2 and 4, written
 // with write_vtu, has every cell's volume positive in VTK (vtkCellSizeFilter, through
-// tests/io/vtk_cell_volumes.py) and VTK's total equal to ours, and reads back through
+// tests/io/vtk_volumes.hpp) and VTK's total equal to ours, and reads back through
 // read_vtu as the same elements. VTK_WEDGE (order 1) orders its first triangle the other way
 // round from Gmsh's prism; a writer that forgets it gives VTK negative wedges.
 #include <doctest/doctest.h>
 
 #include "stages/io/mesh_io.hpp"
+#include "vtk_volumes.hpp"
 #include "stages/model/basis.hpp"
 
 #include <unistd.h>
@@ -29,36 +30,6 @@ fs::path tmpdir() {
     return p;
   }();
   return d;
-}
-
-// per VTK cell class: {cells, cells with volume <= 0, total volume}
-struct VtkVolumes {
-  long cells = 0, nonpositive = 0;
-  double total = 0;
-};
-std::map<std::string, VtkVolumes> vtk_volumes(const fs::path& file) {
-  const auto out = tmpdir() / "volumes.txt";
-  const std::string cmd = std::string(MESHFLOW_PYTHON) + " " + MESHFLOW_SOURCE_DIR + "/tests/io/vtk_cell_volumes.py " +
-                          file.string() + " > " + out.string() + " 2>&1";
-  const int rc = std::system(cmd.c_str());
-  std::ifstream in(out);
-  std::stringstream text;
-  text << in.rdbuf();
-  INFO(text.str());
-  REQUIRE(rc == 0);
-  std::map<std::string, VtkVolumes> by;
-  std::string cls;
-  VtkVolumes v;
-  while (text >> cls) {
-    if (cls == "patch") {
-      std::string rest;
-      std::getline(text, rest);
-      continue;
-    }
-    text >> v.cells >> v.nonpositive >> v.total;
-    by[cls] = v;
-  }
-  return by;
 }
 
 // The straight-sided box [0,2]x[0,1]x[0,1.5] cut into n^3 cells: its lower half into prisms
@@ -137,7 +108,7 @@ TEST_CASE("VTU prisms and hexahedra of orders 1, 2, 4: every cell's volume posit
     REQUIRE(std::abs(ours - 3.0) < 1e-12);  // the box, and none of our elements inverted
     const auto file = tmpdir() / ("box" + std::to_string(p) + ".vtu");
     io::write_vtu(m, file);
-    const auto by = vtk_volumes(file);
+    const auto by = mfvtk::measure(file).by_class;
     const std::string wedge = p == 1 ? "vtkWedge" : "vtkLagrangeWedge", hex = p == 1 ? "vtkHexahedron" : "vtkLagrangeHexahedron";
     REQUIRE(by.count(wedge));
     REQUIRE(by.count(hex));
