@@ -5,8 +5,14 @@
 #include "engine/hash.hpp"
 #include "engine/workflow.hpp"
 
+#include <openssl/crypto.h>
+#include <openssl/evp.h>
+#include <openssl/hmac.h>
+
 #include <cstdlib>
+#include <fstream>
 #include <ostream>
+#include <sstream>
 
 namespace fs = std::filesystem;
 using nlohmann::json;
@@ -27,7 +33,50 @@ bool is_sha256(const std::string& s) {
 }
 
 std::string short_digest(const std::string& d) { return d.substr(0, 12) + "..."; }
+
+// The signing key: the bytes of the file $MESHFLOW_REMOTE_KEY_FILE names, a final newline
+// dropped ("" when the variable is unset).
+constexpr std::size_t kMinKeyBytes = 16;
+std::string read_signing_key(const std::string& file) {
+  if (file.empty()) return "";
+  const std::string what = "MESHFLOW_REMOTE_KEY_FILE '" + file + "'";
+  std::error_code ec;
+  if (!fs::is_regular_file(file, ec))
+    throw WorkflowError(what + " is not a file: give the file holding the team's remote cache key (e.g. made once with "
+                               "`openssl rand -hex 32 > key`, shared with every machine that uses the cache).");
+  std::ifstream in(file, std::ios::binary);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  if (!in && !in.eof()) throw WorkflowError(what + " cannot be read: check its permissions.");
+  std::string key = ss.str();
+  while (!key.empty() && (key.back() == '\n' || key.back() == '\r')) key.pop_back();
+  if (key.size() < kMinKeyBytes)
+    throw WorkflowError(what + " holds " + std::to_string(key.size()) + " bytes; a key needs at least " +
+                        std::to_string(kMinKeyBytes) + " (make one with `openssl rand -hex 32`).");
+  return key;
+}
 }  // namespace
+
+std::string entry_signature(const json& entry, const std::string& secret) {
+  json unsigned_entry = entry;
+  if (unsigned_entry.is_object()) unsigned_entry.erase("signature");
+  const std::string text = canonical_json(unsigned_entry);
+  unsigned char mac[EVP_MAX_MD_SIZE];
+  unsigned int n = 0;
+  if (!HMAC(EVP_sha256(), secret.data(), static_cast<int>(secret.size()), reinterpret_cast<const unsigned char*>(text.data()),
+            text.size(), mac, &n))
+    throw std::runtime_error("OpenSSL HMAC-SHA256 failed");
+  static const char* hex = "0123456789abcdef";
+  std::string out;
+  for (unsigned int i = 0; i < n; ++i) out += hex[mac[i] >> 4], out += hex[mac[i] & 15];
+  return out;
+}
+
+bool entry_signed_by(const json& entry, const std::string& secret) {
+  if (!entry.is_object() || !entry.contains("signature") || !entry["signature"].is_string()) return false;
+  const std::string given = entry["signature"].get<std::string>(), want = entry_signature(entry, secret);
+  return given.size() == want.size() && CRYPTO_memcmp(given.data(), want.data(), want.size()) == 0;
+}
 
 RemoteCacheOptions resolve_remote_cache(const std::string& url_option, const std::string& netrc_option,
                                         double connect_timeout_s, double timeout_s) {
@@ -51,6 +100,8 @@ RemoteCacheOptions resolve_remote_cache(const std::string& url_option, const std
                           netrc + "' is not a file: give a netrc file with `machine HOST login USER password PASS`.");
     o.client.netrc = netrc;
   }
+  o.key = read_signing_key(env("MESHFLOW_REMOTE_KEY_FILE"));
+  if (!o.key.empty()) o.key_source = "the key in MESHFLOW_REMOTE_KEY_FILE (" + env("MESHFLOW_REMOTE_KEY_FILE") + ")";
   o.client.header = env("MESHFLOW_REMOTE_CACHE_HEADER");
   if (!o.client.header.empty()) {
     auto colon = o.client.header.find(':');
@@ -85,7 +136,16 @@ std::string check_remote_entry(const json& entry, const std::string& key) {
 }
 
 RemoteCache::RemoteCache(const RemoteCacheOptions& options, Cache& local, std::ostream& err)
-    : url_(options.url), client_(options.client), local_(local), err_(err) {}
+    : url_(options.url), client_(options.client), local_(local), err_(err), key_(options.key), key_source_(options.key_source) {}
+
+void RemoteCache::note_unsigned_once() {
+  if (!key_.empty() || noted_unsigned_) return;
+  noted_unsigned_ = true;
+  err_ << "note: remote cache " << url_ << " is unauthenticated: its entries are trusted as far as their preimage "
+       << "hashes to the key, so anyone who can write to it can change this run's results; set "
+          "MESHFLOW_REMOTE_KEY_FILE to the team's key file to sign entries and use only signed ones (README, \"Shared "
+          "cache\").\n";
+}
 
 void RemoteCache::warn(const std::string& message) {
   err_ << "warning: remote cache " << url_ << ": " << message << "\n";
@@ -116,6 +176,13 @@ std::optional<json> RemoteCache::fetch_entry(const std::string& key, const std::
   if (std::string why = check_remote_entry(entry, key); !why.empty()) {
     warn("the entry of stage '" + stage + "' (ac/" + short_digest(key) + ") is unusable: " + why +
          "; ignored, the stage runs here");
+    return std::nullopt;
+  }
+  if (!key_.empty() && !entry_signed_by(entry, key_)) {
+    warn("the entry of stage '" + stage + "' (ac/" + short_digest(key) + ") " +
+         (entry.contains("signature") ? "has a signature that does not verify with " : "is not signed with ") +
+         key_source_ + " (forged, changed on the server, or uploaded by a client without the key); ignored and not kept, " +
+         "the stage runs here and its signed entry replaces it on the server");
     return std::nullopt;
   }
   return entry;
@@ -162,6 +229,7 @@ bool RemoteCache::fetch_object(const std::string& digest, const std::string& sta
 
 bool RemoteCache::fetch(const std::string& key, const std::string& stage) {
   if (off_ || !asked_.insert(key).second) return false;
+  note_unsigned_once();
   auto entry = fetch_entry(key, stage);
   if (!entry) return false;
   for (auto& o : (*entry)["outputs"])
@@ -198,7 +266,9 @@ void RemoteCache::upload(const std::string& key, const json& entry, const std::s
   if (off_ || uploads_off_) return;
   for (auto& o : entry["outputs"])
     if (!upload_object(o["digest"], stage)) return;
-  std::string text = remote_entry(entry).dump(1);
+  json signed_entry = remote_entry(entry);
+  if (!key_.empty()) signed_entry["signature"] = entry_signature(signed_entry, key_);
+  std::string text = signed_entry.dump(1);
   http::Response r = client_.put(url_ + "/ac/" + key, text);
   bytes_up_ += r.bytes;
   if (r.ok()) {
@@ -215,7 +285,7 @@ void RemoteCache::upload(const std::string& key, const json& entry, const std::s
 }
 
 json RemoteCache::report() const {
-  return {{"url", url_},           {"served", served_},         {"uploaded", uploaded_},
+  return {{"url", url_},           {"signed", !key_.empty()},   {"served", served_},         {"uploaded", uploaded_},
           {"warnings", warnings_}, {"bytes_down", bytes_down_}, {"bytes_up", bytes_up_}};
 }
 
