@@ -257,9 +257,17 @@ TopoDS_Shape fuse_solids(const TopoDS_Shape& s, json& fixes, StageContext& ctx) 
   if (!fuse.IsDone() || fuse.HasErrors())
     throw StageError("heal: fusing the body's " + std::to_string(n) +
                      " solids failed in OpenCASCADE; fuse them in the CAD system, or give them as separate files");
-  ShapeUpgrade_UnifySameDomain un(fuse.Shape(), Standard_True, Standard_True, Standard_False);
-  un.Build();
-  TopoDS_Shape out = un.Shape();
+  // Unifying is a simplification: where OpenCASCADE throws on it (an aircraft of 27 touching
+  // parts), the fused body keeps the faces the fusion split.
+  TopoDS_Shape out = fuse.Shape();
+  try {
+    ShapeUpgrade_UnifySameDomain un(out, Standard_True, Standard_True, Standard_False);
+    un.Build();
+    out = un.Shape();
+  } catch (const Standard_Failure& e) {  // the fused body with its split faces: still one body
+    ctx.log(std::string("heal: unifying the faces the fusion split failed in OpenCASCADE (") + e.GetMessageString() +
+            "); the fused body keeps them split");
+  }
   int after = 0;
   for (TopExp_Explorer ex(out, TopAbs_SOLID); ex.More(); ex.Next()) ++after;
   fixes["solids_fused"] = {{"before", n}, {"after", after}};
@@ -478,7 +486,7 @@ TopoDS_Shape fuse_step(const TopoDS_Shape& s, json& fixes, StageContext& ctx, co
   try {
     return fuse_solids(s, fixes, ctx);
   } catch (const Standard_Failure& e) {
-    throw StageError(src + ": OpenCASCADE failed while repairing the shape (" + e.GetMessageString() +
+    throw StageError(src + ": OpenCASCADE failed while fusing the body's solids (" + e.GetMessageString() +
                      "); try another tolerance or repair the CAD in its source system");
   }
 }
@@ -1022,18 +1030,27 @@ void run(StageContext& ctx) {
     if (opt.unify) {
       ctx.progress(0.75, "unify");
       int before = count(fluid, tol).faces;
-      ShapeUpgrade_UnifySameDomain un(fluid, Standard_True, Standard_True, Standard_False);
-      un.SetLinearTolerance(tol);
-      un.Build();
       // Unifying is a simplification, never a repair: a result OCCT's own check rejects (it can
-      // merge a capsule's hemisphere with its seam into an invalid face) is not taken.
-      if (BRepCheck_Analyzer(un.Shape()).IsValid() || !BRepCheck_Analyzer(fluid).IsValid()) {
-        fluid = un.Shape();
-        fixes["unified_faces"] = before - count(fluid, tol).faces;
-      } else {
+      // merge a capsule's hemisphere with its seam into an invalid face) is not taken, nor is
+      // one OCCT throws on (an aircraft of 27 fused parts): the faces are kept as they were.
+      std::string rejected;
+      try {
+        ShapeUpgrade_UnifySameDomain un(fluid, Standard_True, Standard_True, Standard_False);
+        un.SetLinearTolerance(tol);
+        un.Build();
+        if (BRepCheck_Analyzer(un.Shape()).IsValid() || !BRepCheck_Analyzer(fluid).IsValid()) {
+          fluid = un.Shape();
+          fixes["unified_faces"] = before - count(fluid, tol).faces;
+        } else {
+          rejected = "the unified solid fails BRepCheck";
+        }
+      } catch (const Standard_Failure& e) {
+        rejected = std::string("OpenCASCADE failed unifying them (") + e.GetMessageString() + ")";
+      }
+      if (!rejected.empty()) {
         fixes["unified_faces"] = 0;
-        fixes["unify_rejected"] = "the unified solid fails BRepCheck; the faces are kept as they were";
-        ctx.log("heal: unifying same-domain faces gave a solid that fails BRepCheck: faces kept as they were");
+        fixes["unify_rejected"] = rejected + "; the faces are kept as they were";
+        ctx.log("heal: unifying same-domain faces: " + rejected + ": faces kept as they were");
       }
     }
   } catch (const Standard_Failure& e) {
@@ -1175,7 +1192,7 @@ void run(StageContext& ctx) {
 }
 
 StageRegistrar reg({.kind = "heal",
-                    .version = 5,  // 3: also writes the CAD reference of the mesh contract; 4: lowers a tolerance that opens a closed input, sews at measured gaps, caps planar openings, tags a curved far field, drops enclosed regions; 5: gaps measured along edges with the same ends, planar loops inside larger openings capped (closed along two planes' crossing), a lone face's openings
+                    .version = 6,  // 6: faces kept split where OpenCASCADE throws while unifying them; 3: also writes the CAD reference of the mesh contract; 4: lowers a tolerance that opens a closed input, sews at measured gaps, caps planar openings, tags a curved far field, drops enclosed regions; 5: gaps measured along edges with the same ends, planar loops inside larger openings capped (closed along two planes' crossing), a lone face's openings
                     .summary = "sew, fix and close the CAD into a watertight fluid solid; refuse what cannot be repaired",
                     .libraries = {"OCCT " OCC_VERSION_COMPLETE},
                     .needs = {"shape"},

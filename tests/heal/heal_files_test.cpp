@@ -196,3 +196,22 @@ TEST_CASE("heal: symmetry_plane puts a half model on its root plane: no padding 
   TestContext bad("heal", nlohmann::json{{"fluid", "given"}, {"symmetry_plane", "z-"}}, {imp->artifact("shape")});
   CHECK_THROWS_WITH_AS(bad.run(), doctest::Contains("needs fluid: box"), StageError);
 }
+
+// A body of 27 solids that touch (bench/corpus/real/simple_plane_multisolid.brep, an aircraft of
+// parts): they fuse exactly, but OpenCASCADE throws while unifying the faces the fusion split and
+// again while unifying the fluid's faces. Unifying is a simplification, so the faces are kept
+// split and heal goes on: one closed fluid solid with the aircraft as its wall.
+TEST_CASE("heal: an aircraft of 27 touching solids is fused and cut from the box even where unifying its faces throws") {
+  const fs::path f = fs::path(MESHFLOW_SOURCE_DIR) / "bench/corpus/real/simple_plane_multisolid.brep";
+  REQUIRE(fs::exists(f));
+  auto h = heal_in_box(f);
+  const auto& fx = h->stats_["fixes"];
+  MESSAGE("fixes: " << fx.dump());
+  CHECK(fx["solids_fused"]["before"] == 27);
+  CHECK(fx["solids_fused"]["after"] == 1);
+  Shape s = Shape::load(h->artifact("shape").path);
+  CHECK(s.watertight());
+  CHECK(s.num_solids() == 1);
+  CHECK(s.faces_with_tag(Tag::farfield).size() == 6);
+  CHECK(s.faces_with_tag(Tag::wall).size() > 27);
+}

@@ -555,7 +555,7 @@ TEST_CASE("untangle floor: a repaired element ends at the early exit's floor, or
   CHECK(rep.to_json().at("below_floor_retries") == rep.below_floor);
 }
 
-TEST_CASE("linearise: an element untangle cannot repair is made valid by taking back part of its curvature; vertices stay, moved boundary nodes are counted and lose their parameters") {
+TEST_CASE("linearise: an element untangle cannot repair is made valid by taking back part of its curvature: vertices stay, moved boundary nodes are counted and lose their parameters") {
   auto [m, el] = impossible_cube(2);
   REQUIRE(el != SIZE_MAX);
   m.node_u.assign(m.num_nodes(), 0.25);  // stand-in parameters: the moved boundary nodes must lose theirs

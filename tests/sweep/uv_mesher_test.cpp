@@ -99,7 +99,7 @@ TEST_CASE("uv mesher: a disc bounded by one closed circular edge gets one point 
 // round the centroid of one triangle of the plain mesh, so that exactly that triangle counts
 // as folded; the result must have no folded triangle, still cover the square, and keep no
 // unused point.
-TEST_CASE("uv mesher: a triangle left folded at the end is repaired by a flip, a move or a collapse; the face stays covered") {
+TEST_CASE("uv mesher: a triangle left folded at the end is repaired by a flip, a move or a collapse, and the face stays covered") {
   UVMeshInput in;
   in.uv = {{0, 0}, {1, 0}, {1, 1}, {0, 1}};
   in.segments = {{0, 1}, {1, 2}, {2, 3}, {3, 0}};
