@@ -28,6 +28,36 @@ double age_seconds(const fs::path& p) {
 }
 void touch(const fs::path& p) { ::utimensat(AT_FDCWD, p.c_str(), nullptr, 0); }
 
+// What lies at an object's path, looked at without following links and without throwing:
+// the store only ever renames regular files there, so anything else (a folder, a symlink, a
+// loop of symlinks, a device, a path the system refuses to resolve) is a corrupt object.
+enum class AtObjectPath { Missing, File, Foreign };
+AtObjectPath at_object_path(const fs::path& p) {
+  std::error_code ec;
+  const fs::file_status st = fs::symlink_status(p, ec);
+  if (st.type() == fs::file_type::not_found) return AtObjectPath::Missing;
+  if (ec) return AtObjectPath::Foreign;
+  return st.type() == fs::file_type::regular ? AtObjectPath::File : AtObjectPath::Foreign;
+}
+const char* foreign_kind(const fs::path& p) {
+  std::error_code ec;
+  const fs::file_status st = fs::symlink_status(p, ec);
+  if (ec) return "something the system cannot resolve";
+  if (st.type() == fs::file_type::directory) return "a folder";
+  if (st.type() == fs::file_type::symlink) return "a symbolic link";
+  return "not a regular file";
+}
+// Every path under objects/<ab>/ (the names objects are stored under), without following
+// links or entering what lies at an object's path; `fn(path)` for each. Never throws.
+void for_each_object_path(const fs::path& objects, const std::function<void(const fs::path&)>& fn) {
+  std::error_code ec;
+  for (fs::directory_iterator d(objects, ec), end; !ec && d != end; d.increment(ec)) {
+    std::error_code ec2;
+    if (!d->is_directory(ec2) || d->is_symlink(ec2)) continue;  // objects/ holds only the <ab> folders
+    for (fs::directory_iterator o(d->path(), ec2), oend; !ec2 && o != oend; o.increment(ec2)) fn(o->path());
+  }
+}
+
 // What a lock file says about its holder.
 struct LockFile {
   bool exists = false;  // false: vanished while we looked
@@ -110,7 +140,7 @@ fs::path Cache::quarantine(const fs::path& object, const std::string& digest) co
   std::error_code ec;
   fs::create_directories(q.parent_path(), ec);
   if (::rename(object.c_str(), q.c_str()) == 0) return q;
-  if (::unlink(object.c_str()) == 0) return {};  // could not keep it: at least never serve it
+  fs::remove_all(object, ec);  // could not keep it: at least never serve it
   return {};
 }
 
@@ -118,10 +148,11 @@ bool Cache::verify_object(const std::string& digest, BadObject* bad) const {
   if (verified_.count(digest)) return true;
   fs::path p = object_path(digest);
   std::error_code ec;
-  if (!fs::exists(p, ec)) return false;
+  const AtObjectPath at = at_object_path(p);
+  if (at == AtObjectPath::Missing) return false;
   std::string actual;
   try {
-    actual = sha256_file(p);
+    if (at == AtObjectPath::File) actual = sha256_file(p);
   } catch (...) {
   }
   if (actual == digest) {
@@ -142,17 +173,17 @@ std::string Cache::store_object(const fs::path& file) {
   fs::path target = object_path(digest);
   std::error_code ec;
   fs::create_directories(target.parent_path(), ec);
-  if (fs::exists(target)) {
+  if (const AtObjectPath at = at_object_path(target); at != AtObjectPath::Missing) {
     std::string present;
     try {
-      present = sha256_file(target);
+      if (at == AtObjectPath::File) present = sha256_file(target);
     } catch (...) {
     }
     if (present == digest) {
       fs::remove(file, ec);
       return digest;
     }
-    quarantine(target, digest);  // a corrupt copy under this name: replaced by the good bytes
+    quarantine(target, digest);  // a corrupt copy (or a folder, a link) under this name: replaced
   }
   // fsync the data before it becomes visible under its name.
   int fd = ::open(file.c_str(), O_RDONLY | O_CLOEXEC);
@@ -178,7 +209,7 @@ std::optional<json> Cache::load_action(const std::string& key) const {
   }
   if (!entry.is_object() || entry.value("key", "") != key || !entry.contains("outputs")) return std::nullopt;
   for (auto& o : entry["outputs"])
-    if (!fs::exists(object_path(o.value("digest", "")), ec)) return std::nullopt;
+    if (at_object_path(object_path(o.value("digest", ""))) != AtObjectPath::File) return std::nullopt;
   touch(p);
   return entry;
 }
@@ -300,11 +331,14 @@ GcReport Cache::gc(const GcOptions& opt) const {
     actions.push_back(std::move(a));
   }
   std::map<std::string, std::pair<std::uint64_t, double>> objects;  // digest -> size, age
-  for (auto& e : fs::recursive_directory_iterator(root_ / "objects", ec))
-    if (e.is_regular_file()) {
-      objects[e.path().filename().string()] = {e.file_size(), age_seconds(e.path())};
-      r.bytes_before += e.file_size();
-    }
+  for_each_object_path(root_ / "objects", [&](const fs::path& p) {
+    if (at_object_path(p) != AtObjectPath::File) return;  // gc --verify --repair removes those
+    std::error_code e2;
+    const std::uint64_t size = fs::file_size(p, e2);
+    if (e2) return;
+    objects[p.filename().string()] = {size, age_seconds(p)};
+    r.bytes_before += size;
+  });
   // Most recently used first; drop by age, then by size budget.
   std::sort(actions.begin(), actions.end(), [](const Action& a, const Action& b) {
     return a.age != b.age ? a.age < b.age : a.file < b.file;
@@ -331,7 +365,7 @@ GcReport Cache::gc(const GcOptions& opt) const {
     ++r.objects_removed;
   }
   for (auto& [d, sa] : objects)
-    if (fs::exists(object_path(d), ec)) r.bytes_after += sa.first;
+    if (at_object_path(object_path(d)) == AtObjectPath::File) r.bytes_after += sa.first;
   return r;
 }
 
@@ -388,23 +422,28 @@ VerifyReport Cache::verify(bool repair) const {
   VerifyReport r;
   std::error_code ec;
   std::set<std::string> bad;
-  for (auto& e : fs::recursive_directory_iterator(root_ / "objects", ec)) {
-    if (!e.is_regular_file()) continue;
+  for_each_object_path(root_ / "objects", [&](const fs::path& p) {
     ++r.objects;
-    std::string name = e.path().filename().string();
+    std::string name = p.filename().string();
+    if (at_object_path(p) != AtObjectPath::File) {
+      r.problems.push_back("object " + name + " is " + foreign_kind(p) + ", not a file");
+      bad.insert(name);
+      if (repair) quarantine(p, name);
+      return;
+    }
     std::string actual;
     try {
-      actual = sha256_file(e.path());
+      actual = sha256_file(p);
     } catch (...) {
       actual = "(unreadable)";
     }
     if (actual != name) {
       r.problems.push_back("object " + name + " has content " + actual);
       bad.insert(name);
-      if (repair) quarantine(e.path(), name);
+      if (repair) quarantine(p, name);
     }
-  }
-  auto object_ok = [&](const std::string& d) { return !bad.count(d) && fs::exists(object_path(d)); };
+  });
+  auto object_ok = [&](const std::string& d) { return !bad.count(d) && at_object_path(object_path(d)) == AtObjectPath::File; };
   std::vector<EntryFacts> entries;
   for (auto& e : fs::directory_iterator(root_ / "actions", ec)) {
     if (e.path().extension() != ".json") {

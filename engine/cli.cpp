@@ -199,8 +199,9 @@ int cli_main(int argc, char** argv) {
     sc->add_option("--cache", cache_dir, "cache folder (default: $MESHFLOW_CACHE, else .meshflow/ beside the workflow)");
     sc->add_option("--variant", variant, "one variant of the workflow's matrix (by name; `meshflow dag` lists them)");
     if (with_run_opts) {
-      sc->add_option("-j,--jobs", jobs, "stages run at once (default: number of cores)");
-      sc->add_option("--threads", threads, "total thread budget shared by running stages (default: number of cores)");
+      sc->add_option("-j,--jobs", jobs, "stages run at once (default: number of cores)")->check(CLI::NonNegativeNumber);
+      sc->add_option("--threads", threads, "total thread budget shared by running stages (default: number of cores)")
+          ->check(CLI::NonNegativeNumber);
       sc->add_option("--memory-budget", memory_budget,
                      "GB of memory each stage may take; past it the stage fails with a message (default: 80 % of the "
                      "machine's memory; 0: no limit)")
@@ -231,7 +232,7 @@ int cli_main(int argc, char** argv) {
   exp->add_option("--cache", cache_dir, "the cache the rules share (default: $MESHFLOW_CACHE, else .meshflow/ beside the workflow)");
   exp->add_option("--out", out_dir, "output folder (default: out/<workflow name>/, a folder per variant in it)");
   exp->add_option("-o,--output", snakefile_path, "the Snakefile to write (default: Snakefile; - for stdout)");
-  exp->add_option("--threads", threads, "threads per stage rule (default 2)");
+  exp->add_option("--threads", threads, "threads per stage rule (default 2)")->check(CLI::NonNegativeNumber);
   exp->add_option("--exe", exe, "the meshflow command the rules run (default: this executable)");
   exp->add_option("--remote-cache", remote_url, "a remote cache every rule uses (see run --remote-cache)");
   auto* status = app.add_subcommand("status", "show which stages are fresh, stale (and why) or never run");
@@ -261,7 +262,7 @@ int cli_main(int argc, char** argv) {
   std::string report_dir;
   report->add_option("out_dir", report_dir, "a run's output folder (out/<workflow name>/)")->required();
   report->add_option("--cache", cache_dir, "the cache holding the run's artifacts (default: the one report.json names)");
-  report->add_option("--threads", threads, "threads for the pictures (default: number of cores)");
+  report->add_option("--threads", threads, "threads for the pictures (default: number of cores)")->check(CLI::NonNegativeNumber);
   auto* kinds = app.add_subcommand("kinds", "list stage kinds with their parameters, and artifact types with formats");
   std::string kind_name;
   kinds->add_option("kind", kind_name, "only this kind");
@@ -393,7 +394,7 @@ int cli_main(int argc, char** argv) {
     }
     if (!variants.empty() && variant.empty() && run->parsed()) {  // the whole study
       auto res = run_matrix(wf, sets, run_options());
-      return res.ok ? 0 : res.failed ? kFailed : kInvalid;
+      return res.ok ? 0 : res.bad_input ? kBadInput : res.failed ? kFailed : kInvalid;
     }
     if (dag->parsed()) {
       if (dot) {
@@ -483,7 +484,7 @@ int cli_main(int argc, char** argv) {
       ro.deliver = false;
     }
     RunResult rr = run_workflow(wf, ro);
-    if (!rr.ok) return rr.failed ? kFailed : kInvalid;
+    if (!rr.ok) return rr.bad_input ? kBadInput : rr.failed ? kFailed : kInvalid;
     if (run->parsed()) return 0;
     json summary = golden_summary(wf, rr);
     fs::path gfile = wf.golden->dir / "summary.json";

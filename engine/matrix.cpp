@@ -155,6 +155,7 @@ MatrixResult run_matrix(const Workflow& base, const std::vector<std::string>& se
     res.ok = res.ok && rr.ok;
     res.invalid = res.invalid || rr.invalid;
     res.failed = res.failed || rr.failed;
+    res.bad_input = res.bad_input || rr.bad_input;
     res.table.push_back({{"variant", v->name},
                          {"overrides", v->overrides},
                          {"status", rr.ok ? "ok" : rr.failed ? "failed" : "invalid"},

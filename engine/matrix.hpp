@@ -35,7 +35,7 @@ const Variant& find_variant(const std::vector<Variant>& variants, const std::str
 // name a key the matrix varies), runs each into <out>/<variant>/, prints the table and writes
 // <out>/matrix.json. `only` (non-empty) runs that variant alone.
 struct MatrixResult {
-  bool ok = true, invalid = false, failed = false;
+  bool ok = true, invalid = false, failed = false, bad_input = false;  // see RunResult
   nlohmann::json table = nlohmann::json::array();
 };
 MatrixResult run_matrix(const Workflow& base, const std::vector<std::string>& sets, const RunOptions& options,

@@ -635,7 +635,7 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
   std::map<size_t, std::string> waiting_on;
   const auto t0 = Clock::now();
   size_t finished = 0;
-  bool any_failed = false, any_invalid = false;
+  bool any_failed = false, any_invalid = false, any_bad_input = false;
   // A stage's result is delivered when an output is materialised from it or no stage needs it:
   // a contract problem there fails the run even when it is repairable by a later stage.
   // (With deliver = false, `run --only`, nothing is: the run that writes the outputs judges.)
@@ -755,6 +755,7 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
       } catch (const WorkflowError& e) {
         r.error = e.what();
         err << "error: " << e.what() << "\n";
+        any_bad_input = true;
         finish(i, "failed");
         continue;
       }
@@ -917,6 +918,7 @@ RunResult run_workflow(const Workflow& wf, const RunOptions& opt) {
 
   rr.invalid = any_invalid;
   rr.failed = any_failed;
+  rr.bad_input = any_bad_input;
   rr.ok = !rr.failed && (!rr.invalid || opt.allow_invalid);
   json stages = json::array();
   json all_problems = json::array();

@@ -64,6 +64,9 @@ struct RunResult {
   // allow_invalid accepted it. Exit code 3 (cli's kInvalid), distinct from a failed stage.
   bool invalid = false;
   bool failed = false;  // a stage failed, or the outputs or report.json could not be written
+  // A stage's input is bad (a `file:` parameter names a missing file or a folder): exit 2
+  // (cli's kBadInput), as for any bad input, rather than 1.
+  bool bad_input = false;
   std::vector<StageResult> stages;  // in topological order
   nlohmann::json report;
   std::filesystem::path out_dir;

@@ -4,6 +4,7 @@
 #include "engine/registry.hpp"
 #include "engine/schema.hpp"
 
+#include <yaml-cpp/depthguard.h>
 #include <yaml-cpp/yaml.h>
 
 #include <algorithm>
@@ -328,6 +329,11 @@ Workflow load_workflow_text(const std::string& text, const fs::path& file, const
   YAML::Node root;
   try {
     root = YAML::Load(text);
+  } catch (const YAML::DeepRecursion& e) {  // yaml-cpp's message is only "bad file"
+    throw WorkflowError(file.string() + ":" + std::to_string(e.mark.line + 1) + ":" + std::to_string(e.mark.column + 1) +
+                        ": the YAML is nested too deep: lists or mappings " + std::to_string(e.depth()) +
+                        " levels deep, the most the YAML reader takes (a workflow needs a handful). Look for runaway "
+                        "brackets or indentation there.");
   } catch (const YAML::Exception& e) {
     throw WorkflowError(file.string() + ":" + std::to_string(e.mark.line + 1) + ":" + std::to_string(e.mark.column + 1) +
                         ": YAML syntax error: " + e.msg + ". Fix the YAML (indentation, quotes, colons) at that place.");
@@ -375,6 +381,9 @@ Workflow load_workflow_text(const std::string& text, const fs::path& file, const
     YAML::Node v;
     try {
       v = YAML::Load(value);
+    } catch (const YAML::DeepRecursion& e) {
+      throw WorkflowError("--set " + o.substr(0, 60) + "...: the value is nested too deep: lists or mappings " +
+                          std::to_string(e.depth()) + " levels deep, the most the YAML reader takes.");
     } catch (const YAML::Exception& e) {
       throw WorkflowError("--set " + o + ": the value is not valid YAML: " + e.msg);
     }

@@ -83,6 +83,6 @@ TEST_CASE("a folder given where a file parameter wants a file says so") {
   WorkflowFixture f("meshflow: 1\nname: files\nstages:\n  c: {kind: t_file, with: {path: data}}\n");
   fs::create_directories(f.dir / "data");
   auto r = f.run();
-  CHECK(r.code == 1);  // as for a missing file: found when the stage's key is made
+  CHECK(r.code == 2);  // bad input, as --help says (found when the stage's key is made)
   CHECK(r.err.find("it is a folder: give the path of a file in it") != std::string::npos);
 }

@@ -144,7 +144,7 @@ TEST_CASE("a crashing stage is reported with its signal and output, and leaves n
 TEST_CASE("a missing input file is a clear error before anything runs") {
   Fixture f("meshflow: 1\nname: files\nstages:\n  c: {kind: t_file, with: {path: data/in.txt}}\n");
   auto r = f.run();
-  CHECK(r.code == 1);
+  CHECK(r.code == 2);  // bad input, as --help says
   CHECK(r.err.find("parameter 'path': cannot read") != std::string::npos);
   CHECK(action_count(f.cache) == 0);
   // the file's content is in the key: same path, new content -> re-run
