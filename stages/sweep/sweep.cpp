@@ -1273,11 +1273,20 @@ detail::UVMeshOutput Builder::mesh_parameter_plane(int f, const detail::UVMeshIn
   if (std::getenv("MESHFLOW_SWEEP_DEBUG"))
     log("face " + std::to_string(f) + ": " + std::to_string(out.uv.size()) + " points, " + std::to_string(out.tris.size()) +
         " triangles, " + std::to_string(out.passes) + " passes, min quality " + std::to_string(out.min_quality));
-  if (out.folded > 0)
+  if (out.folded > 0) {
+    char at[96];
+    std::snprintf(at, sizeof at, "(%.6g, %.6g, %.6g)", out.folded_at[0], out.folded_at[1], out.folded_at[2]);
     throw StageError("sweep: face " + std::to_string(f) + " (" + cad::tag_name(S.face_tag(f)) + ", " + S.face_surface_type(f) +
                      "): " + std::to_string(out.folded) +
                      " triangle(s) of its parameter-plane mesh fold over in 3D (their normal opposes the surface's) after "
-                     "refinement; the parameterisation is singular there (a pole): lower the wall sizes or heal the face");
+                     "refinement and repair, one at " + at +
+                     (out.folded_on_segment
+                          ? ", across a boundary segment: the face is narrower there than the segment's chord sags (a thin "
+                            "strip or fillet whose edges have too few divisions); lower the wall sizes (balance.max_size) so "
+                            "its edges get more, or remove the strip in the CAD"
+                          : ", where the parameterisation is singular (a pole) or strongly sheared: lower the wall sizes or "
+                            "heal the face"));
+  }
   return out;
 }
 

@@ -762,7 +762,17 @@ class UVMesher {
     out.min_quality = 1;
     for (int t = 0; t < static_cast<int>(out.tris.size()); ++t) {
       out.min_quality = std::min(out.min_quality, q3(t));
-      if (folded(out.tris[t][0], out.tris[t][1], out.tris[t][2])) ++out.folded;
+      const auto& tr = out.tris[t];
+      if (!folded(tr[0], tr[1], tr[2])) continue;
+      bool on_segment = false;
+      for (int k = 0; k < 3; ++k) on_segment |= is_segment(tr[k], tr[(k + 1) % 3]);
+      // where it is: the first folded triangle, or the first on a boundary segment if any is
+      if (out.folded++ == 0 || (on_segment && !out.folded_on_segment)) {
+        out.folded_at = {0, 0, 0};
+        for (int k = 0; k < 3; ++k)
+          for (int c = 0; c < 3; ++c) out.folded_at[c] += p3[tr[k]][c] / 3;
+        out.folded_on_segment = on_segment;
+      }
     }
   }
 };

@@ -59,6 +59,11 @@ struct UVMeshOutput {
   double min_quality = 1;  // of the result (a pole's own triangles, points in 3D, left out)
   int folded = 0;          // triangles whose 3D normal opposes the surface's (with in.orientation), left at the end
   int unfold_repairs = 0;  // flips, moves and collapses that repaired folded triangles at the end
+  // a folded triangle left (the first on a boundary segment, else the first): its 3D centroid,
+  // and whether one of its sides is a boundary segment (then the face is narrower there than
+  // the segment's chord sags: no point inside the face unfolds it)
+  std::array<double, 3> folded_at{0, 0, 0};
+  bool folded_on_segment = false;
 };
 
 // Throws std::runtime_error (crossing constraints, a point budget exceeded) with the reason.
