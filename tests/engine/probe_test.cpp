@@ -68,7 +68,7 @@ TEST_CASE("cache: a symbolic-link loop at an object's path is a corrupt object: 
   CHECK(f.run().code == 0);
 }
 
-TEST_CASE("cache: a folder in place of an object fails gc --verify; --repair and a run recover") {
+TEST_CASE("cache: a folder in place of an object fails gc --verify, and --repair and a run recover") {
   WorkflowFixture f(kTwo);
   REQUIRE(f.run().code == 0);
   const fs::path obj = object_of(f, "b");
