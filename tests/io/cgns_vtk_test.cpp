@@ -59,7 +59,7 @@ fs::path gmsh_cube(int p) {
 }
 }  // namespace
 
-TEST_CASE("CGNS in ParaView (VTK's CGNS reader), orders 1 and 2: every boundary group loads; volumes as VTK gives them from our VTU, but for VTK's own wedge faults") {
+TEST_CASE("CGNS in ParaView (VTK's CGNS reader), orders 1 and 2: every boundary group loads, and volumes as VTK gives them from our VTU, but for VTK's own wedge faults") {
   for (int p : {1, 2}) {
     INFO("order " << p);
     const model::Mesh m = io::read_mesh(gmsh_cube(p));
