@@ -186,7 +186,7 @@ TEST_CASE("Nektar++ XML: corrupt compressed sections give a clear MeshIOError an
   REQUIRE(b > a + 40);
   auto with_vertex = [&](const std::string& payload) { return text.substr(0, a) + payload + text.substr(b); };
   const std::string body = text.substr(a, b - a);
-  const char junk[] = "not a zlib stream";
+  const char junk[34] = "not a zlib stream";  // 33 bytes read below (zero-padded)
   struct Case {
     const char* name;
     std::string text;
