@@ -392,7 +392,8 @@ struct Checker {
     std::ostringstream s;
     s << "the mesh encloses a volume of " << volume << ", " << cad->source << " " << cad->volume << " (relative difference "
       << rel << ", tolerance " << tol << ")";
-    r.problems.push_back(problem("volume", s.str(), 1, true, json::array(), ""));
+    if (inverted()) s << " (with inverted elements, whose folded faces are not the surface)";
+    r.problems.push_back(problem("volume", s.str(), 1, !inverted(), json::array(), ""));
   }
 
   // The boundary elements close: every edge of theirs is used by an even number of them (two
@@ -429,6 +430,16 @@ struct Checker {
                                    "the boundary elements do not close: " + std::to_string(rim) +
                                        " edge(s) used by an odd number of them (the rim of a hole)",
                                    rim, true, where, ""));
+  }
+
+  // Whether the validity clause found inverted elements. Their folded boundary faces count area
+  // (and the volume behind them) twice, so the area and volume clauses measure no surface: then
+  // they are, like validity, repairable by a later stage, which is judged again (a delivered
+  // stage is judged as it is, and fails on validity anyway).
+  bool inverted() const {
+    for (const auto& p : r.problems)
+      if (p.value("clause", std::string()) == "validity") return true;
+    return false;
   }
 
   // Each CAD face has boundary elements; each group's boundary area matches its faces' area.
@@ -478,7 +489,8 @@ struct Checker {
     if (off) {
       std::ostringstream s;
       s << off << " group(s) whose boundary elements' area differs from their CAD faces' by more than " << tol << " relative";
-      r.problems.push_back(problem("coverage", s.str(), off, true, gwhere, ""));
+      if (inverted()) s << " (with inverted elements, whose folded faces are not the surface)";
+      r.problems.push_back(problem("coverage", s.str(), off, !inverted(), gwhere, ""));
     }
   }
 };

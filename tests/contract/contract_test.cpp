@@ -9,6 +9,7 @@
 #include "stages/model/topology.hpp"
 #include "support.hpp"
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <map>
@@ -181,6 +182,34 @@ TEST_CASE("contract: an inverted element breaks validity (repairable: not blocki
   CHECK(r.problems[0]["where"][0]["element"] == 1);
   CHECK(r.problems[0]["where"][0]["scaled_jacobian"].get<double>() < 0);
   CHECK(r.problems[0]["where"][0]["at"].size() == 3);
+}
+
+TEST_CASE("contract: area and volume off beside inverted elements are repairable (not blocking), off on a valid mesh they block") {
+  // the mid-edge node at (0.5, 0.5, 1) of the P=2 cube's top face, pushed out a little (the
+  // mesh stays valid) or deep into the cube (its tets fold, their top faces with them)
+  for (double h : {0.2, -1.5}) {
+    CAPTURE(h);
+    Cube c(2);
+    std::uint32_t mid = UINT32_MAX;
+    for (std::uint32_t i = 0; i < c.m.num_nodes(); ++i)
+      if (std::abs(c.m.x[i] - 0.5) < 1e-12 && std::abs(c.m.y[i] - 0.5) < 1e-12 && std::abs(c.m.z[i] - 1) < 1e-12) mid = i;
+    REQUIRE(mid != UINT32_MAX);
+    c.m.z[mid] += h;
+    auto cad = cube_cad();
+    auto r = contract::check(c.m, contract::Extent::Domain, &cad, 1);
+    INFO(r.problems.dump());
+    const auto cl = clauses(r);
+    const bool inverted = std::count(cl.begin(), cl.end(), "validity") > 0;
+    CHECK(inverted == (h < 0));
+    int measured = 0;
+    for (auto& p : r.problems) {
+      if (p["clause"] != "volume" && p["clause"] != "coverage") continue;
+      ++measured;
+      CHECK(p["blocking"] == !inverted);
+      CHECK((p["what"].get<std::string>().find("inverted elements") != std::string::npos) == inverted);
+    }
+    CHECK(measured >= 1);
+  }
 }
 
 TEST_CASE("contract: degenerate elements: coincident nodes, a flat element") {
