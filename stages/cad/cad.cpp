@@ -54,6 +54,7 @@
 #include <cstdlib>
 #include <ctime>
 #include <fstream>
+#include <mutex>
 #include <set>
 #include <sstream>
 #include <stdexcept>
@@ -253,7 +254,18 @@ void name_products(const Handle(Interface_InterfaceModel)& model) {
 }
 }  // namespace
 
+// OpenCASCADE's data exchange (STEP, IGES) keeps its parameters in one process-wide table
+// (Interface_Static) that each writer sets: two writers at once race on it. The runner writes an
+// output's formats in parallel threads, so a shape's STEP and IGES files are written one at a
+// time. (A test run writing a shape's brep, step and iges at once ended once with SIGSEGV under
+// load, after its stages and before its report: this race is the likely cause, not a proven one.)
+static std::mutex& data_exchange_mutex() {
+  static std::mutex m;
+  return m;
+}
+
 void Shape::export_step(const std::filesystem::path& file) const {
+  std::lock_guard<std::mutex> lock(data_exchange_mutex());
   occt::silence();
   const std::string& un = impl_->units;
   double mm = un == "m" ? 1000 : un == "cm" ? 10 : un == "in" ? 25.4 : un == "ft" ? 304.8 : 1;
@@ -274,6 +286,7 @@ void Shape::export_step(const std::filesystem::path& file) const {
 }
 
 void Shape::export_iges(const std::filesystem::path& file) const {
+  std::lock_guard<std::mutex> lock(data_exchange_mutex());
   occt::silence();
   const std::string& un = impl_->units;
   const char* u = un == "m" ? "M" : un == "cm" ? "CM" : un == "in" ? "IN" : un == "ft" ? "FT" : "MM";
