@@ -652,7 +652,8 @@ class UVMesher {
     drop_unused();
   }
   bool ccw(const std::array<int, 3>& t) const { return orient(out.uv[t[0]], out.uv[t[1]], out.uv[t[2]]) > 0; }
-  bool sound(const std::array<int, 3>& t) const { return ccw(t) && !folded(t[0], t[1], t[2]); }
+  // counter-clockwise, unfolded, and not a pole's own triangle (a point in 3D, dropped later: a repair must not make one)
+  bool sound(const std::array<int, 3>& t) const { return ccw(t) && !folded(t[0], t[1], t[2]) && !collapsed(t[0], t[1], t[2]); }
   bool is_segment(int a, int b) const {
     for (auto& sg : in.segments)
       if ((sg[0] == a && sg[1] == b) || (sg[0] == b && sg[1] == a)) return true;
