@@ -147,6 +147,7 @@ class UVMesher {
   UVMeshOutput out;
   std::vector<std::array<double, 3>> p3, n3;  // surface points and normals of out.uv
   std::vector<int> pole;                      // per boundary point: its pole or -1 (pole_groups)
+  std::set<std::pair<int, int>> segments;     // the boundary segments, (lower, higher) point
   CDT cdt;
   int nb = 0, np = 0;  // boundary points, all points (after refinement)
   std::vector<std::vector<int>> vt, nbr;  // triangles and neighbours of each point
@@ -154,6 +155,7 @@ class UVMesher {
 
   void setup() {
     out.uv = in.uv;
+    for (auto& sg : in.segments) segments.insert({std::min(sg[0], sg[1]), std::max(sg[0], sg[1])});
     p3.reserve(in.uv.size());
     for (auto& q : in.uv) p3.push_back(in.point(q[0], q[1]));
     if (in.normal)
@@ -541,11 +543,8 @@ class UVMesher {
 
   // ── no two boundary segments of one triangle meeting at a smooth boundary point ──
   void smooth_corners() {
-    std::set<std::pair<int, int>> seg;
-    for (auto& sg : in.segments) seg.insert({std::min(sg[0], sg[1]), std::max(sg[0], sg[1])});
-    auto is_seg = [&](int a, int b) { return seg.count({std::min(a, b), std::max(a, b)}) > 0; };
     auto smooth_corner = [&](int v, int a, int b) {
-      return v < nb && v < static_cast<int>(in.smooth.size()) && in.smooth[v] && is_seg(a, v) && is_seg(v, b);
+      return v < nb && v < static_cast<int>(in.smooth.size()) && in.smooth[v] && is_segment(a, v) && is_segment(v, b);
     };
     // The split point of triangle tr at its smooth corner k: off the middle of the shorter of the
     // two boundary segments at the smooth point, inwards by half its length, so that the corners
@@ -580,7 +579,7 @@ class UVMesher {
           int v = tr[k], b = tr[(k + 1) % 3], a = tr[(k + 2) % 3];  // (v, b, a) counter-clockwise
           if (!smooth_corner(v, a, b)) continue;
           std::array<double, 2> q;
-          if (split_point(tr, k, q) || is_seg(a, b)) break;
+          if (split_point(tr, k, q) || is_segment(a, b)) break;
           auto& ts = et[{std::min(a, b), std::max(a, b)}];
           if (ts.size() != 2) break;
           int u = ts[0] == t ? ts[1] : ts[0];
@@ -654,11 +653,7 @@ class UVMesher {
   bool ccw(const std::array<int, 3>& t) const { return orient(out.uv[t[0]], out.uv[t[1]], out.uv[t[2]]) > 0; }
   // counter-clockwise, unfolded, and not a pole's own triangle (a point in 3D, dropped later: a repair must not make one)
   bool sound(const std::array<int, 3>& t) const { return ccw(t) && !folded(t[0], t[1], t[2]) && !collapsed(t[0], t[1], t[2]); }
-  bool is_segment(int a, int b) const {
-    for (auto& sg : in.segments)
-      if ((sg[0] == a && sg[1] == b) || (sg[0] == b && sg[1] == a)) return true;
-    return false;
-  }
+  bool is_segment(int a, int b) const { return segments.count({std::min(a, b), std::max(a, b)}) > 0; }
   bool flip_folded(int t) {
     for (int k = 0; k < 3; ++k) {
       const int a = out.tris[t][k], b = out.tris[t][(k + 1) % 3], c = out.tris[t][(k + 2) % 3];
