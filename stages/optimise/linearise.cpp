@@ -269,7 +269,14 @@ LineariseReport linearise_invalid(Mesh& m, const LineariseOptions& opt, int thre
   std::vector<std::vector<char>> valid(m.blocks.size());
   std::vector<Ref> invalid;
   {
-    const auto quality = model::mesh_quality(m, threads, opt.known_quality, opt.moved_since_known);
+    // a quality that holds for every element as it is now is read as it is (the stage passes the
+    // one it computed after untangling): copying it would cost a pass over the whole mesh
+    const model::MeshQuality* given = opt.known_quality;
+    bool whole = given && !opt.moved_since_known;
+    for (std::uint32_t bi : ix.blocks) whole = whole && bi < given->size() && (*given)[bi].size() == m.blocks[bi].size();
+    model::MeshQuality computed;
+    if (!whole) computed = model::mesh_quality(m, threads, opt.known_quality, opt.moved_since_known);
+    const model::MeshQuality& quality = whole ? *given : computed;
     for (std::uint32_t bi : ix.blocks) {
       valid[bi].assign(quality[bi].size(), 1);
       for (std::uint32_t e = 0; e < quality[bi].size(); ++e)
