@@ -14,13 +14,7 @@ here=$(cd "$(dirname "$0")" && pwd)
 source "$here/nginx.sh"
 work=$(mktemp -d "${TMPDIR:-/tmp}/meshflow-remote.XXXXXX")
 trap 'stop_nginx; [ -n "${MESHFLOW_KEEP_TEST_DIRS:-}" ] || rm -rf "$work"' EXIT
-fail() { echo "FAIL: $*"; exit 1; }
-json() { /usr/bin/python3 -c "import json,sys; r=json.load(open(sys.argv[1])); print($2)" "$1"; }
-
-wf=$src/workflows/naca_wingtip.yaml
-small=(--set geometry.farfield_chords=3 --set balance.min_size=0.015 --set balance.max_size=0.15
-       --set curve.order=2 --set split.layers=3 -j 2 --threads 2)
-stages=10
+source "$here/demo_small.sh"
 
 start_nginx "$work/nginx" "$work/store" || exit 1
 echo "nginx at $NGINX_URL (pid $NGINX_PID)"
